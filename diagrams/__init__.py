@@ -1,0 +1,1 @@
+"""Functions that build diagrams from systems, the scenarios and the command line."""

@@ -1,0 +1,162 @@
+"""Run folders: every run writes its signals and its configuration, readable with pandas.
+
+Layout of a run folder (docs/run_folder.md):
+    metadata.json        command, seed, configuration, versions, and per stream its columns
+    <stream>.parquet     one table per logged signal, a `time` column [s] plus named columns
+Streams: `fc_command`, `fc_status`, `fc_attitude`, `ground_truth` (VectorLogSink at a fixed
+period) and `imu` (every IMU sample exactly once, with its sequence number and timestamp).
+"""
+import dataclasses as dc
+import datetime
+import json
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from pydrake.systems.framework import LeafSystem
+from pydrake.systems.primitives import VectorLogSink
+
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH, ImuSamples,
+                                     VectorLayout)
+
+FORMAT_VERSION = 1
+
+
+class ImuLogSink(LeafSystem):
+    """Input `imu` ImuSamples; records each sample once (by sequence number) at every `period`."""
+
+    def __init__(self, period: float):
+        super().__init__()
+        from pydrake.common.value import AbstractValue
+        self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._record)
+        self.DeclareForcedPublishEvent(self._record)
+        self.samples: list[ImuSamples] = []
+        self._last_seq = -1
+
+    def _record(self, context):
+        new = self._imu.Eval(context).newer_than(self._last_seq)
+        if len(new):
+            self.samples.append(new)
+            self._last_seq = int(new.seq[-1])
+
+    def frame(self) -> pd.DataFrame:
+        if not self.samples:
+            return pd.DataFrame(columns=["time", "seq", *IMU_COLUMNS])
+        seq = np.concatenate([s.seq for s in self.samples])
+        return pd.DataFrame({
+            "time": np.concatenate([s.t for s in self.samples]), "seq": seq,
+            **dict(zip(IMU_COLUMNS, np.hstack([np.vstack([s.accel for s in self.samples]),
+                                               np.vstack([s.gyro for s in self.samples])]).T))})
+
+
+IMU_COLUMNS = ["accel_x", "accel_y", "accel_z", "gyro_x", "gyro_y", "gyro_z"]
+
+
+@dc.dataclass
+class RunLoggers:
+    vector_sinks: dict[str, tuple[VectorLogSink, VectorLayout]]
+    imu_sink: ImuLogSink | None
+
+
+def add_run_logging(builder, vehicle, command_port=None, period: float = 0.01) -> RunLoggers:
+    """Logs the vehicle's vector outputs, its IMU and (if given) the command sent to it."""
+    ports = {"fc_status": (vehicle.GetOutputPort("fc_status"), FC_STATUS),
+             "fc_attitude": (vehicle.GetOutputPort("fc_attitude"), FC_ATTITUDE)}
+    if vehicle.HasOutputPort("ground_truth"):
+        ports["ground_truth"] = (vehicle.GetOutputPort("ground_truth"), GROUND_TRUTH)
+    if command_port is not None:
+        ports["fc_command"] = (command_port, FC_COMMAND)
+    sinks = {}
+    for name, (port, layout) in ports.items():
+        sink = builder.AddNamedSystem(f"log_{name}", VectorLogSink(layout.size, period))
+        builder.Connect(port, sink.get_input_port())
+        sinks[name] = (sink, layout)
+    imu_sink = builder.AddNamedSystem("log_imu", ImuLogSink(period=0.1))
+    builder.Connect(vehicle.GetOutputPort("imu"), imu_sink.get_input_port())
+    return RunLoggers(sinks, imu_sink)
+
+
+def _versions() -> dict:
+    versions = {}
+    for package in ("alight", "drake", "numpy"):
+        try:
+            versions[package] = importlib_metadata.version(package)
+        except importlib_metadata.PackageNotFoundError:
+            versions[package] = None
+    return versions
+
+
+def _jsonable(value):
+    if dc.is_dataclass(value):
+        return {k: _jsonable(v) for k, v in dc.asdict(value).items()}
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value
+
+
+def write_run_folder(path: str | Path, loggers: RunLoggers, root_context, run_metadata: dict
+                     ) -> Path:
+    """Writes every logged stream as Parquet and metadata.json (config, seed, versions, columns)."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    streams = {}
+    for name, (sink, layout) in loggers.vector_sinks.items():
+        log = sink.FindLog(root_context)
+        frame = pd.DataFrame(log.data().T, columns=layout.names())
+        frame.insert(0, "time", log.sample_times())
+        frame.to_parquet(path / f"{name}.parquet", index=False)
+        streams[name] = {"file": f"{name}.parquet", "columns": ["time", *layout.names()],
+                         "fields": dict(layout.fields), "rows": len(frame)}
+    if loggers.imu_sink is not None:
+        loggers.imu_sink.ForcedPublish(loggers.imu_sink.GetMyContextFromRoot(root_context))
+        frame = loggers.imu_sink.frame()
+        frame.to_parquet(path / "imu.parquet", index=False)
+        streams["imu"] = {"file": "imu.parquet", "columns": list(frame.columns), "rows": len(frame)}
+    document = {"format_version": FORMAT_VERSION,
+                "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+                "versions": _versions(), "streams": streams, **_jsonable(run_metadata)}
+    (path / "metadata.json").write_text(json.dumps(document, indent=2))
+    return path
+
+
+class RunLog:
+    """A run folder read back: `run.metadata` (dict) and `run["ground_truth"]` (DataFrame)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        metadata_file = self.path / "metadata.json"
+        if not metadata_file.is_file():
+            raise FileNotFoundError(f"{self.path} is not a run folder: no metadata.json")
+        self.metadata = json.loads(metadata_file.read_text())
+        self._frames: dict[str, pd.DataFrame] = {}
+
+    @property
+    def streams(self) -> list[str]:
+        return list(self.metadata["streams"])
+
+    def __getitem__(self, stream: str) -> pd.DataFrame:
+        if stream not in self.metadata["streams"]:
+            raise KeyError(f"{self.path}: no stream '{stream}' (has {self.streams})")
+        if stream not in self._frames:
+            self._frames[stream] = pd.read_parquet(self.path / self.metadata["streams"][stream]
+                                                   ["file"])
+        return self._frames[stream]
+
+    def field(self, stream: str, field: str) -> pd.DataFrame:
+        """The columns of one field, e.g. `run.field("ground_truth", "p_WB")` (x, y, z)."""
+        frame = self[stream]
+        size = self.metadata["streams"][stream]["fields"][field]
+        columns = [field] if size == 1 else [f"{field}_{i}" for i in range(size)]
+        return frame[columns]
+
+
+def read_run(path: str | Path) -> RunLog:
+    return RunLog(path)

@@ -1,0 +1,168 @@
+"""Builds the simulated hexacopter: plant + motors + drag + wind + flight controller + sensors,
+exporting exactly the vehicle-boundary ports of DESIGN.md (alight.systems.boundary)."""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.common import RandomDistribution
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import AddContactMaterial, Box, HalfSpace, Meshcat, ProximityProperties, Sphere
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction,
+                                     ExternallyAppliedSpatialForceMultiplexer,
+                                     MultibodyPlantConfig, Propeller)
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource, RandomSource
+from pydrake.systems.sensors import Accelerometer, Gyroscope
+
+from alight.diagrams.flight_controller import make_flight_controller
+from alight.models import model_path
+from alight.systems.autopilot.config import FlightControllerParams
+from alight.systems.boundary import CameraFrame
+from alight.systems.params import bounded, load_params
+from alight.systems.plant.drag import AerodynamicDrag
+from alight.systems.plant.hexacopter import (add_hexacopter, airframe, load_hexacopter_params,
+                                             propeller_infos)
+from alight.systems.plant.motors import EscThrustMap, first_order_motors
+from alight.systems.plant.wind import Wind, WindParams
+from alight.systems.sensors.fc_estimate import FcEstimate, FcEstimateParams
+from alight.systems.sensors.ground_truth import GroundTruth
+from alight.systems.sensors.imu import Imu, ImuParams
+
+
+@dc.dataclass
+class SimVehicleConfig:
+    vehicle: str = "hexacopter_f550.yaml"               # the model's parameter file in models/
+    time_step: float = bounded(0.001, 1e-4, 0.01, "s")  # discrete MultibodyPlant (SAP contact)
+    ground_friction: float = bounded(0.8, 0.0, 2.0)
+    initial_position: list[float] = bounded([0.0, 0.0], -1e4, 1e4, "m")  # x, y on the ground
+    initial_heading: float = bounded(0.0, -360.0, 360.0, "deg")
+    flight_controller: FlightControllerParams = dc.field(default_factory=FlightControllerParams)
+    imu: ImuParams = dc.field(default_factory=ImuParams)
+    fc_estimate: FcEstimateParams = dc.field(default_factory=FcEstimateParams)
+    wind: WindParams = dc.field(default_factory=WindParams)
+
+
+def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleConfig:
+    return load_params(SimVehicleConfig, model_path(filename))
+
+
+def _add_ground(plant, friction: float):
+    properties = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(friction, friction), properties=properties)
+    plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
+                                    properties)
+    plant.RegisterVisualGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
+                                 np.array([0.45, 0.55, 0.4, 1.0]))
+
+
+def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -> Diagram:
+    """The simulated vehicle diagram. Input `fc_command`; outputs `imu`, `fc_attitude`,
+    `fc_status`, `rgbd`, `down_image` (no camera fitted yet: empty CameraFrame) and the
+    simulation-only `ground_truth`. Seed it with `Diagram.SetRandomContext`."""
+    params = load_hexacopter_params(config.vehicle)
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(
+        MultibodyPlantConfig(time_step=config.time_step, discrete_contact_approximation="sap"),
+        builder)
+    _add_ground(plant, config.ground_friction)
+    instance = add_hexacopter(plant, params)
+    plant.Finalize()
+    body = plant.GetBodyByName(params.body)
+    frame = airframe(plant, params)
+    n = frame.num_rotors
+
+    # Rest on the ground at the start.
+    plant.SetDefaultFloatingBaseBodyPose(body, RigidTransform(
+        RollPitchYaw(0, 0, np.radians(config.initial_heading)),
+        [*config.initial_position, _lowest_point_height(plant, scene_graph.model_inspector(), body)]))
+
+    # Rotors: ESC map (saturation) -> first-order motors -> Drake Propeller -> plant.
+    esc = builder.AddNamedSystem("esc", EscThrustMap(n, frame.rotor_curve))
+    motors = builder.AddNamedSystem("motors", first_order_motors(
+        params.time_constant, n, config.time_step))
+    propellers = builder.AddNamedSystem("propellers", Propeller(propeller_infos(plant, params)))
+    builder.Connect(esc.get_output_port(), motors.get_input_port())
+    builder.Connect(motors.get_output_port(), propellers.get_command_input_port())
+    builder.Connect(plant.get_body_poses_output_port(), propellers.get_body_poses_input_port())
+
+    # Wind and drag.
+    wind = builder.AddNamedSystem("wind", Wind(config.wind))
+    wind_noise = builder.AddNamedSystem("wind_noise", RandomSource(
+        RandomDistribution.kGaussian, 3, config.wind.period))
+    builder.Connect(wind_noise.get_output_port(), wind.GetInputPort("noise"))
+    drag = builder.AddNamedSystem("drag", AerodynamicDrag(
+        body.index(), params.drag_linear, params.drag_quadratic))
+    body_state = plant.get_state_output_port(instance)
+    builder.Connect(body_state, drag.GetInputPort("body_state"))
+    builder.Connect(wind.GetOutputPort("wind"), drag.GetInputPort("wind"))
+    forces = builder.AddNamedSystem("applied_forces", ExternallyAppliedSpatialForceMultiplexer(2))
+    builder.Connect(propellers.get_spatial_forces_output_port(), forces.get_input_port(0))
+    builder.Connect(drag.GetOutputPort("spatial_forces"), forces.get_input_port(1))
+    builder.Connect(forces.get_output_port(), plant.get_applied_spatial_force_input_port())
+
+    # Sensors: IMU (Drake's ideal accelerometer and gyroscope + noise model), FC estimate.
+    X_BS = RigidTransform()
+    accelerometer = builder.AddNamedSystem("accelerometer", Accelerometer(
+        body, X_BS, plant.gravity_field().gravity_vector()))
+    gyroscope = builder.AddNamedSystem("gyroscope", Gyroscope(body, X_BS))
+    for sensor in (accelerometer, gyroscope):
+        builder.Connect(plant.get_body_poses_output_port(), sensor.get_body_poses_input_port())
+        builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                        sensor.get_body_velocities_input_port())
+    builder.Connect(plant.get_body_spatial_accelerations_output_port(),
+                    accelerometer.get_body_accelerations_input_port())
+    imu = builder.AddNamedSystem("imu", Imu(config.imu))
+    imu_noise = builder.AddNamedSystem("imu_noise", RandomSource(
+        RandomDistribution.kGaussian, 12, config.imu.period))
+    builder.Connect(accelerometer.get_measurement_output_port(),
+                    imu.GetInputPort("specific_force"))
+    builder.Connect(gyroscope.get_measurement_output_port(), imu.GetInputPort("angular_velocity"))
+    builder.Connect(imu_noise.get_output_port(), imu.GetInputPort("noise"))
+    estimate = builder.AddNamedSystem("fc_estimate", FcEstimate(config.fc_estimate))
+    estimate_noise = builder.AddNamedSystem("fc_estimate_noise", RandomSource(
+        RandomDistribution.kGaussian, 7, config.fc_estimate.period))
+    builder.Connect(body_state, estimate.GetInputPort("body_state"))
+    builder.Connect(estimate_noise.get_output_port(), estimate.GetInputPort("noise"))
+
+    # Flight controller.
+    fc = builder.AddSystem(make_flight_controller(config.flight_controller, frame))
+    builder.Connect(estimate.GetOutputPort("fc_attitude"), fc.GetInputPort("fc_attitude"))
+    builder.Connect(estimate.GetOutputPort("vertical_velocity"),
+                    fc.GetInputPort("vertical_velocity"))
+    builder.Connect(fc.GetOutputPort("motor_command"), esc.GetInputPort("motor_command"))
+    builder.Connect(fc.GetOutputPort("armed"), esc.GetInputPort("armed"))
+
+    truth = builder.AddNamedSystem("ground_truth", GroundTruth(n))
+    builder.Connect(body_state, truth.GetInputPort("body_state"))
+    builder.Connect(wind.GetOutputPort("wind"), truth.GetInputPort("wind"))
+    builder.Connect(fc.GetOutputPort("motor_command"), truth.GetInputPort("motor_command"))
+    builder.Connect(motors.get_output_port(), truth.GetInputPort("rotor_thrust"))
+
+    if meshcat is not None:
+        from alight.diagrams.visualization import add_meshcat_visualizer
+        add_meshcat_visualizer(builder, scene_graph, meshcat)
+
+    builder.ExportInput(fc.GetInputPort("fc_command"), "fc_command")
+    builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
+    builder.ExportOutput(estimate.GetOutputPort("fc_attitude"), "fc_attitude")
+    builder.ExportOutput(fc.GetOutputPort("fc_status"), "fc_status")
+    for camera in ("rgbd", "down_image"):  # reserved: the camera issues fit these
+        source = builder.AddNamedSystem(f"{camera}_camera", ConstantValueSource(
+            AbstractValue.Make(CameraFrame())))
+        builder.ExportOutput(source.get_output_port(), camera)
+    builder.ExportOutput(truth.GetOutputPort("ground_truth"), "ground_truth")
+    diagram = builder.Build()
+    diagram.set_name("sim_vehicle")
+    return diagram
+
+
+def _lowest_point_height(plant, inspector, body) -> float:
+    """Height of the body origin when its lowest collision geometry touches z = 0."""
+    lowest = 0.0
+    for geometry_id in plant.GetCollisionGeometriesForBody(body):
+        X_BG = inspector.GetPoseInFrame(geometry_id)
+        shape = inspector.GetShape(geometry_id)
+        extent = shape.radius() if isinstance(shape, Sphere) else \
+            shape.depth() / 2 if isinstance(shape, Box) else 0.0
+        lowest = min(lowest, X_BG.translation()[2] - extent)
+    return -lowest

@@ -1,0 +1,1 @@
+"""Hardware side: the MAVLink vehicle, real-time runner, camera drivers (later issues)."""

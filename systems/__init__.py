@@ -1,0 +1,1 @@
+"""LeafSystems of alight, one concept per module (see DESIGN.md)."""

@@ -1,0 +1,68 @@
+"""Attitude controller: attitude error -> body-rate setpoint, as PX4's quaternion controller.
+
+The tilt (z_B) error is corrected first and the heading error only with weight `yaw_weight`
+(reduced-attitude priority of Brescianini et al., used by PX4), then a proportional law on the
+vector part of the error quaternion gives the rate setpoint, clipped to the rate limits.
+In rates+thrust mode the commanded body rates pass through (clipped).
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.autopilot.setpoint import SETPOINT
+from alight.systems.boundary import FC_ATTITUDE, CommandMode
+from alight.systems.params import bounded
+from alight.systems.rotations import (conjugate, quaternion_product, rotation_between,
+                                      rotation_matrix)
+
+
+@dc.dataclass
+class AttitudeControlParams:
+    gain: list[float] = bounded([6.0, 6.0, 2.8], 0.0, 50.0, "1/s")  # roll, pitch, yaw
+    yaw_weight: float = bounded(0.4, 0.0, 1.0)
+    max_rate: list[float] = bounded([3.8, 3.8, 3.5], 0.1, 20.0, "rad/s")  # PX4 MC_*RATE_MAX
+
+
+def attitude_rate_setpoint(q_WB: np.ndarray, q_WD: np.ndarray, params: AttitudeControlParams):
+    """Body-rate setpoint [rad/s, in B] that turns the estimated attitude toward the desired one."""
+    q_WB = q_WB / np.linalg.norm(q_WB)
+    q_WD = q_WD / np.linalg.norm(q_WD)
+    z_B = rotation_matrix(q_WB)[:, 2]
+    z_D = rotation_matrix(q_WD)[:, 2]
+    q_reduced = quaternion_product(rotation_between(z_B, z_D), q_WB)  # tilt corrected only
+    q_mix = quaternion_product(conjugate(q_reduced), q_WD)            # remaining rotation (yaw)
+    q_mix *= np.sign(q_mix[0]) if q_mix[0] != 0 else 1.0
+    w_mix = np.clip(q_mix[0], -1.0, 1.0)
+    z_mix = np.clip(q_mix[3], -1.0, 1.0)
+    q_mix = np.array([np.cos(params.yaw_weight * np.arccos(w_mix)), 0.0, 0.0,
+                      np.sin(params.yaw_weight * np.arcsin(z_mix))])
+    q_target = quaternion_product(q_reduced, q_mix)
+    q_error = quaternion_product(conjugate(q_WB), q_target)
+    rate = 2.0 * np.sign(q_error[0] if q_error[0] != 0 else 1.0) * q_error[1:] \
+        * np.asarray(params.gain)
+    return np.clip(rate, -np.asarray(params.max_rate), params.max_rate)
+
+
+class AttitudeController(LeafSystem):
+    """Input  `setpoint`      SETPOINT (mode, q_WD, w_D, thrust, armed) from the commander
+    Input  `fc_attitude`   FC_ATTITUDE estimate
+    Output `rate_setpoint` (3) body rates [rad/s, in B]
+    """
+
+    def __init__(self, params: AttitudeControlParams):
+        super().__init__()
+        self._params = params
+        self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
+        self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
+        self.DeclareVectorOutputPort("rate_setpoint", 3, self._calc)
+
+    def _calc(self, context, output):
+        setpoint = self._setpoint.Eval(context)
+        if int(SETPOINT.get(setpoint, "mode")) == CommandMode.RATES_THRUST:
+            rate = np.clip(SETPOINT.get(setpoint, "w_D"), -np.asarray(self._params.max_rate),
+                           self._params.max_rate)
+        else:
+            rate = attitude_rate_setpoint(FC_ATTITUDE.get(self._attitude.Eval(context), "q_WB"),
+                                          SETPOINT.get(setpoint, "q_WD"), self._params)
+        output.SetFromVector(rate)

@@ -1,0 +1,15 @@
+"""Parameters of the flight-controller emulation (models/sim_vehicle.yaml, `flight_controller`)."""
+import dataclasses as dc
+
+from alight.systems.autopilot.attitude_control import AttitudeControlParams
+from alight.systems.autopilot.commander import CommanderParams
+from alight.systems.autopilot.rate_control import RateControlParams
+from alight.systems.params import bounded
+
+
+@dc.dataclass
+class FlightControllerParams:
+    period: float = bounded(0.004, 0.001, 0.02, "s")  # 250 Hz (DESIGN.md: 250-500 Hz)
+    commander: CommanderParams = dc.field(default_factory=CommanderParams)
+    attitude: AttitudeControlParams = dc.field(default_factory=AttitudeControlParams)
+    rate: RateControlParams = dc.field(default_factory=RateControlParams)

@@ -1,0 +1,80 @@
+"""Multirotor mixer with saturation handling (PX4's desaturation logic, in thrust-force space).
+
+Collective thrust (thrust curve M(32)-(34)) and torque demand are allocated to rotor thrusts through
+the pseudo-inverse of the allocation matrix; when the rotors cannot deliver it, authority is given
+up in a fixed order: first yaw, then collective thrust, and roll/pitch are scaled down last (keeping
+their direction). Rotor thrusts are then turned into ESC commands by the inverse rotor curve.
+"""
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.autopilot.setpoint import SETPOINT
+from alight.systems.plant.hexacopter import Airframe
+
+
+def allocation_matrix(airframe: Airframe) -> np.ndarray:
+    """Maps rotor thrusts to [collective force, torque x, torque y, torque z] in B."""
+    x, y = airframe.p_BR[:, 0], airframe.p_BR[:, 1]
+    return np.vstack([np.ones(airframe.num_rotors), y, -x, airframe.yaw_moment])
+
+
+class MixerSolution:
+    """Rotor thrusts [N] and how much of each demand survived (1 = fully delivered)."""
+
+    def __init__(self, rotor_thrust, roll_pitch_scale, yaw_scale, collective_shift):
+        self.rotor_thrust = rotor_thrust
+        self.roll_pitch_scale = roll_pitch_scale
+        self.yaw_scale = yaw_scale
+        self.collective_shift = collective_shift
+
+
+def mix(force: float, torque: np.ndarray, pinv: np.ndarray, f_min: float,
+        f_max: float) -> MixerSolution:
+    """Rotor thrusts within [f_min, f_max] for a collective force [N] and torque [N m]."""
+    base = pinv[:, 0] * force
+    roll_pitch = pinv[:, 1:3] @ torque[:2]
+    yaw = pinv[:, 3] * torque[2]
+    span = np.ptp(roll_pitch)
+    rp_scale = min(1.0, (f_max - f_min) / span) if span > 0 else 1.0
+    roll_pitch = roll_pitch * rp_scale
+    # Shift the collective (up or down) as little as possible to fit roll and pitch.
+    lo = f_min - np.min(base + roll_pitch)
+    hi = f_max - np.max(base + roll_pitch)
+    shift = float(np.clip(0.0, lo, hi))
+    thrust = base + roll_pitch + shift
+    yaw_scale = 1.0
+    for f, dy in zip(thrust, yaw):  # largest yaw fraction that keeps every rotor in range
+        if dy > 1e-12:
+            yaw_scale = min(yaw_scale, (f_max - f) / dy)
+        elif dy < -1e-12:
+            yaw_scale = min(yaw_scale, (f_min - f) / dy)
+    yaw_scale = max(yaw_scale, 0.0)
+    thrust = np.clip(thrust + yaw_scale * yaw, f_min, f_max)
+    return MixerSolution(thrust, rp_scale, yaw_scale, shift * len(thrust))
+
+
+class Mixer(LeafSystem):
+    """Input  `torque`        (3) torque demand [N m, in B]
+    Input  `setpoint`      SETPOINT (collective thrust in [0, 1], armed)
+    Output `motor_command` (n) ESC commands in [0, 1] (zero while disarmed)
+    """
+
+    def __init__(self, airframe: Airframe):
+        super().__init__()
+        self._pinv = np.linalg.pinv(allocation_matrix(airframe))
+        self._collective = airframe.thrust_curve
+        self._rotor = airframe.rotor_curve
+        self._f_min = airframe.min_thrust
+        self._f_max = airframe.max_thrust
+        self._torque = self.DeclareVectorInputPort("torque", 3)
+        self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
+        self.DeclareVectorOutputPort("motor_command", airframe.num_rotors, self._calc)
+
+    def _calc(self, context, output):
+        setpoint = self._setpoint.Eval(context)
+        if SETPOINT.get(setpoint, "armed") < 0.5:
+            output.SetFromVector(np.zeros(output.size()))
+            return
+        force = self._collective.force(SETPOINT.get(setpoint, "thrust"))
+        solution = mix(force, self._torque.Eval(context), self._pinv, self._f_min, self._f_max)
+        output.SetFromVector(self._rotor.thrust(solution.rotor_thrust))

@@ -1,0 +1,153 @@
+"""The vehicle boundary of DESIGN.md: port names, vector layouts and value types.
+
+Both the simulated hexacopter and the MAVLink vehicle export exactly these ports. Vector ports are
+described by a `VectorLayout` (named fields, used for packing, slicing and log column names).
+"""
+import dataclasses as dc
+import enum
+
+import numpy as np
+
+
+class VectorLayout:
+    """Named fields of a flat vector: `layout.slice("q_WB")`, `layout.names()` for log columns."""
+
+    def __init__(self, name: str, fields: list[tuple[str, int]]):
+        self.name = name
+        self.fields = list(fields)
+        self._slices = {}
+        start = 0
+        for field, size in self.fields:
+            self._slices[field] = slice(start, start + size)
+            start += size
+        self.size = start
+
+    def slice(self, field: str) -> slice:
+        return self._slices[field]
+
+    def get(self, vector, field: str):
+        value = np.asarray(vector)[self._slices[field]]
+        return value[0] if value.size == 1 else value
+
+    def pack(self, **values) -> np.ndarray:
+        """A vector from every field by name (missing fields are an error)."""
+        missing = {f for f, _ in self.fields} - set(values)
+        if missing:
+            raise ValueError(f"{self.name}: missing fields {sorted(missing)}")
+        vector = np.zeros(self.size)
+        for field, value in values.items():
+            vector[self._slices[field]] = value
+        return vector
+
+    def names(self) -> list[str]:
+        """One column name per element: `field` for scalars, `field_0`, `field_1`... otherwise."""
+        names = []
+        for field, size in self.fields:
+            names += [field] if size == 1 else [f"{field}_{i}" for i in range(size)]
+        return names
+
+
+class CommandMode(enum.IntEnum):
+    """`fc_command` modes: what the landing paper sends, and what the flight-stack paper sends."""
+    ATTITUDE_THRUST = 1
+    RATES_THRUST = 2
+
+
+class ActiveMode(enum.IntEnum):
+    """What the flight controller is doing, reported on `fc_status`."""
+    DISARMED = 0
+    ATTITUDE_THRUST = 1
+    RATES_THRUST = 2
+    FAILSAFE_DESCENT = 3
+
+
+class Refusal(enum.IntEnum):
+    """Why the flight controller refused a command (last one on `fc_status`)."""
+    NONE = 0
+    NOT_FINITE = 1
+    BAD_MODE = 2
+    THRUST_RANGE = 3
+    QUATERNION_NORM = 4
+    BODY_RATE_RANGE = 5
+    ARM_FLAG = 6
+    STAMP_ORDER = 7
+
+
+# Input `fc_command`: stamp [s, sender clock]; mode (CommandMode); q_WD reference orientation
+# (w, x, y, z) of the desired body frame D in W; w_D reference body rates [rad/s, in B];
+# collective thrust in [0, 1] (thrust curve M(32)-(34)); arm request (0 or 1).
+FC_COMMAND = VectorLayout("fc_command", [
+    ("stamp", 1), ("mode", 1), ("q_WD", 4), ("w_D", 3), ("thrust", 1), ("arm", 1)])
+
+# Output `fc_attitude`: stamp [s]; q_WB estimated orientation (w, x, y, z); w_B body rates [rad/s].
+FC_ATTITUDE = VectorLayout("fc_attitude", [("stamp", 1), ("q_WB", 4), ("w_B", 3)])
+
+# Output `fc_status`: stamp [s]; armed; active mode (ActiveMode); link alive (a valid command newer
+# than the stale timeout); stamp of the last accepted command [s]; refused command count; last
+# refusal (Refusal); landed (the land detector's verdict).
+FC_STATUS = VectorLayout("fc_status", [
+    ("stamp", 1), ("armed", 1), ("mode", 1), ("link_alive", 1), ("last_command_stamp", 1),
+    ("refused", 1), ("last_refusal", 1), ("landed", 1)])
+
+# Output `ground_truth` (simulation only, never read onboard): p_WB [m]; q_WB (w, x, y, z);
+# v_WB [m/s, in W]; w_WB_B body rates [rad/s, in B]; wind velocity v_WA [m/s, in W];
+# the flight controller's ESC commands in [0, 1]; rotor thrusts [N].
+GROUND_TRUTH = VectorLayout("ground_truth", [
+    ("p_WB", 3), ("q_WB", 4), ("v_WB", 3), ("w_WB_B", 3), ("v_WA", 3), ("motor_command", 6),
+    ("rotor_thrust", 6)])
+
+
+@dc.dataclass(frozen=True)
+class ImuSamples:
+    """The `imu` port value: the most recent IMU samples, oldest first, each with its own sequence
+    number and timestamp. A consumer keeps the last sequence number it used and takes
+    `newer_than(seq)`: every sample is seen exactly once as long as it reads at least once per
+    buffer length (`capacity / rate`). A gap in `seq` means samples were lost upstream.
+
+    accel: specific force in B [m/s^2]; gyro: angular velocity of B in B [rad/s].
+    """
+    seq: np.ndarray    # (N,) int64
+    t: np.ndarray      # (N,) s
+    accel: np.ndarray  # (N, 3)
+    gyro: np.ndarray   # (N, 3)
+
+    @staticmethod
+    def empty() -> "ImuSamples":
+        return ImuSamples(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+
+    def newer_than(self, seq: int) -> "ImuSamples":
+        keep = self.seq > seq
+        return ImuSamples(self.seq[keep], self.t[keep], self.accel[keep], self.gyro[keep])
+
+    def appended(self, seq: int, t: float, accel, gyro, capacity: int) -> "ImuSamples":
+        """A new buffer with one more sample, keeping at most `capacity` samples."""
+        return ImuSamples(np.append(self.seq, seq)[-capacity:], np.append(self.t, t)[-capacity:],
+                          np.vstack([self.accel, accel])[-capacity:],
+                          np.vstack([self.gyro, gyro])[-capacity:])
+
+    def __len__(self) -> int:
+        return len(self.seq)
+
+
+@dc.dataclass(frozen=True)
+class CameraFrame:
+    """The `rgbd` and `down_image` port value: the latest frame, or `None` fields when the vehicle
+    has no such camera fitted (the camera issues fill these in).
+
+    stamp: exposure time [s]; image: HxW (grayscale) or HxWx3 colour; depth: HxW [m] or None;
+    calibration: dict with K (3x3), distortion, width, height, X_BC (camera pose in B), or None.
+    """
+    stamp: float = float("nan")
+    image: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    calibration: dict | None = None
+
+    @property
+    def valid(self) -> bool:
+        return self.image is not None and np.isfinite(self.stamp)
+
+
+VECTOR_OUTPUTS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS}
+ABSTRACT_OUTPUTS = {"imu": ImuSamples, "rgbd": CameraFrame, "down_image": CameraFrame}
+INPUTS = {"fc_command": FC_COMMAND}
+SIM_ONLY_OUTPUTS = {"ground_truth": GROUND_TRUTH}

@@ -1,0 +1,1 @@
+"""Controllers that produce `fc_command`."""

@@ -1,0 +1,1 @@
+"""The simulated vehicle: rigid body, rotors, motors, drag and wind."""

@@ -1,0 +1,42 @@
+"""Body aerodynamic drag: per body axis, F = -(c1 v + c2 |v| v) on the air-relative velocity in B."""
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.multibody.math import SpatialForce
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.rotations import rotation_matrix
+
+
+def drag_force_B(v_BA_B: np.ndarray, linear, quadratic) -> np.ndarray:
+    """Drag on the body [N, in B] for its velocity relative to the air [m/s, in B]."""
+    return -(np.asarray(linear) * v_BA_B + np.asarray(quadratic) * np.abs(v_BA_B) * v_BA_B)
+
+
+class AerodynamicDrag(LeafSystem):
+    """Input  `body_state`     (13) the body's free-joint state [q_WB (w,x,y,z), p_WB, w_WB, v_WB]
+    Input  `wind`           (3) air velocity v_WA [m/s, in W]
+    Output `spatial_forces` list[ExternallyAppliedSpatialForce] applied at the body origin
+    """
+
+    def __init__(self, body_index, linear, quadratic):
+        super().__init__()
+        self._body_index = body_index
+        self._linear = np.array(linear)
+        self._quadratic = np.array(quadratic)
+        self._state = self.DeclareVectorInputPort("body_state", 13)
+        self._wind = self.DeclareVectorInputPort("wind", 3)
+        self.DeclareAbstractOutputPort(
+            "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
+            self._calc, prerequisites_of_calc={self.all_input_ports_ticket()})
+
+    def _calc(self, context, output):
+        x = self._state.Eval(context)
+        R_WB = rotation_matrix(x[0:4])
+        v_BA_B = R_WB.T @ (x[10:13] - self._wind.Eval(context))
+        force = ExternallyAppliedSpatialForce()
+        force.body_index = self._body_index
+        force.p_BoBq_B = np.zeros(3)
+        f_W = R_WB @ drag_force_B(v_BA_B, self._linear, self._quadratic)
+        force.F_Bq_W = SpatialForce(np.zeros(3), f_W)
+        output.set_value([force])

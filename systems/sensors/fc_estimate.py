@@ -1,0 +1,69 @@
+"""The flight controller's own state estimate (what PX4's EKF2 hands its controllers).
+
+Attitude: the true orientation perturbed by a slowly varying error (Ornstein-Uhlenbeck, a few
+tenths of a degree, as a tuned EKF2 on a level-calibrated Pixhawk); body rates: true rates plus
+white noise (filtered gyro); vertical velocity: truth plus noise (baro/accelerometer fusion),
+used only by the flight controller's failsafe descent and land detector.
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import FC_ATTITUDE
+from alight.systems.params import bounded
+from alight.systems.rotations import (quaternion_from_rotation_vector, quaternion_product,
+                                      rotation_matrix)
+
+
+@dc.dataclass
+class FcEstimateParams:
+    period: float = bounded(0.004, 0.001, 0.1, "s")  # 250 Hz
+    attitude_error_std: float = bounded(0.3, 0.0, 10.0, "deg")
+    attitude_error_time: float = bounded(5.0, 0.01, 1000.0, "s")  # correlation time
+    rate_noise_std: float = bounded(0.005, 0.0, 1.0, "rad/s")
+    vertical_velocity_noise_std: float = bounded(0.05, 0.0, 2.0, "m/s")
+
+
+class FcEstimate(LeafSystem):
+    """Input  `body_state`        (13) true free-body state [q_WB, p_WB, w_WB (W), v_WB (W)]
+    Input  `noise`             (7) unit white Gaussian noise, resampled every `period`
+    Output `fc_attitude`       (8) FC_ATTITUDE: stamp, q_WB estimate, body rates (B)
+    Output `vertical_velocity` (1) estimated v_WB z [m/s]
+    """
+
+    def __init__(self, params: FcEstimateParams):
+        super().__init__()
+        decay = np.exp(-params.period / params.attitude_error_time)
+        self._decay = decay
+        self._attitude_drive = np.radians(params.attitude_error_std) * np.sqrt(1.0 - decay**2)
+        self._rate_std = params.rate_noise_std
+        self._vz_std = params.vertical_velocity_noise_std
+        self._state = self.DeclareVectorInputPort("body_state", 13)
+        self._noise = self.DeclareVectorInputPort("noise", 7)
+        # [rotation-vector attitude error (3), fc_attitude (8), vertical velocity (1)]
+        initial = np.zeros(12)
+        initial[3 + FC_ATTITUDE.slice("q_WB").start] = 1.0
+        self._xd = self.DeclareDiscreteState(initial)
+        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareInitializationDiscreteUpdateEvent(self._update)
+        self.DeclareVectorOutputPort("fc_attitude", FC_ATTITUDE.size,
+                                     lambda c, o: o.SetFromVector(self._get(c)[3:11]),
+                                     prerequisites_of_calc={self.xd_ticket()})
+        self.DeclareVectorOutputPort("vertical_velocity", 1,
+                                     lambda c, o: o.SetFromVector(self._get(c)[11:12]),
+                                     prerequisites_of_calc={self.xd_ticket()})
+
+    def _get(self, context):
+        return context.get_discrete_state(self._xd).get_value()
+
+    def _update(self, context, discrete_state):
+        x = self._state.Eval(context)
+        noise = self._noise.Eval(context)
+        error = self._decay * self._get(context)[:3] + self._attitude_drive * noise[:3]
+        q_WB = x[:4] / np.linalg.norm(x[:4])
+        q_est = quaternion_product(q_WB, quaternion_from_rotation_vector(error))
+        w_B = rotation_matrix(q_WB).T @ x[7:10] + self._rate_std * noise[3:6]
+        fc_attitude = FC_ATTITUDE.pack(stamp=context.get_time(), q_WB=q_est, w_B=w_B)
+        vz = x[12] + self._vz_std * noise[6]
+        discrete_state.set_value(self._xd, np.concatenate([error, fc_attitude, [vz]]))

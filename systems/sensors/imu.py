@@ -1,0 +1,66 @@
+"""A consumer MEMS IMU: accelerometer and gyroscope with white noise and bias random walk.
+
+Per axis and sample (period dt): y = truth + b + n_d w1, b <- b + n_b sqrt(dt) w2, with the noise
+densities of the YAML file turned into per-sample standard deviations (n_d = density / sqrt(dt)).
+The truth comes from Drake's `Accelerometer` and `Gyroscope`; the noise from a `RandomSource`.
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import ImuSamples
+from alight.systems.params import bounded
+
+
+@dc.dataclass
+class ImuParams:
+    """Defaults: an MPU-9250/ICM-20602-class IMU (Kalibr-style densities), noise inflated for
+    the vibration of a multirotor."""
+    period: float = bounded(0.005, 0.0005, 0.1, "s")                        # 200 Hz
+    accel_noise_density: float = bounded(0.02, 0.0, 1.0, "m/s^2/sqrt(Hz)")
+    accel_bias_random_walk: float = bounded(1e-3, 0.0, 1.0, "m/s^3/sqrt(Hz)")
+    gyro_noise_density: float = bounded(1.7e-3, 0.0, 1.0, "rad/s/sqrt(Hz)")
+    gyro_bias_random_walk: float = bounded(2e-5, 0.0, 1.0, "rad/s^2/sqrt(Hz)")
+    accel_bias: list[float] = bounded([0.05, -0.04, 0.03], -2.0, 2.0, "m/s^2")   # initial
+    gyro_bias: list[float] = bounded([0.004, -0.003, 0.002], -0.5, 0.5, "rad/s")  # initial
+    buffer_length: int = bounded(100, 2, 100000)  # samples kept on the port (0.5 s at 200 Hz)
+
+
+class Imu(LeafSystem):
+    """Input  `specific_force`   (3) true specific force in B [m/s^2]
+    Input  `angular_velocity` (3) true angular velocity of B in B [rad/s]
+    Input  `noise`            (12) unit white Gaussian noise, resampled every `period`
+    Output `imu`              ImuSamples, the last `buffer_length` samples
+    Output `bias`             (6) true accelerometer and gyroscope biases (for tests and logs)
+    """
+
+    def __init__(self, params: ImuParams):
+        super().__init__()
+        self._period = params.period
+        self._capacity = params.buffer_length
+        self._white = np.repeat([params.accel_noise_density, params.gyro_noise_density], 3) \
+            / np.sqrt(params.period)
+        self._walk = np.repeat([params.accel_bias_random_walk, params.gyro_bias_random_walk], 3) \
+            * np.sqrt(params.period)
+        self._specific_force = self.DeclareVectorInputPort("specific_force", 3)
+        self._angular_velocity = self.DeclareVectorInputPort("angular_velocity", 3)
+        self._noise = self.DeclareVectorInputPort("noise", 12)
+        self._bias = self.DeclareDiscreteState(np.concatenate([params.accel_bias, params.gyro_bias]))
+        self._samples = self.DeclareAbstractState(AbstractValue.Make(ImuSamples.empty()))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareStateOutputPort("imu", self._samples)
+        self.DeclareStateOutputPort("bias", self._bias)
+
+    def _update(self, context, state):
+        bias = context.get_discrete_state(self._bias).get_value()
+        noise = self._noise.Eval(context)
+        truth = np.concatenate([self._specific_force.Eval(context),
+                                self._angular_velocity.Eval(context)])
+        measured = truth + bias + self._white * noise[:6]
+        samples = context.get_abstract_state(self._samples).get_value()
+        seq = int(samples.seq[-1]) + 1 if len(samples) else 0
+        state.get_mutable_abstract_state(self._samples).set_value(samples.appended(
+            seq, context.get_time(), measured[:3], measured[3:], self._capacity))
+        state.get_mutable_discrete_state(self._bias).set_value(bias + self._walk * noise[6:])
