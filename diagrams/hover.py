@@ -57,22 +57,34 @@ def default_run_dir(command: str, seed: int) -> Path:
     return Path("runs") / f"{stamp}-{command}-s{seed}"
 
 
-def run_hover(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
-              run_dir: str | Path | None = None, meshcat=None, record=None,
-              realtime_rate: float = 0.0, duration: float | None = None) -> HoverSummary:
+def fly_profile(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
+                run_dir: str | Path | None = None, meshcat=None, record=None,
+                realtime_rate: float = 0.0, duration: float | None = None,
+                pilot_stops_at: float | None = None, command: str = "hover") -> RunLog:
+    """Flies `profile` with the scripted pilot on the simulated vehicle; returns the run log.
+    `pilot_stops_at` freezes the pilot's output from that time (a companion computer that dies)."""
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
-    pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile, pilot_model(config)))
+    pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile, pilot_model(config),
+                                                          stop_at=pilot_stops_at))
     builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     loggers = add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command"))
     diagram = builder.Build()
     duration = profile.duration if duration is None else duration
     simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate)
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("hover", seed)
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir(command, seed)
     write_run_folder(run_dir, loggers, simulator.get_context(), {
-        "command": "hover", "seed": seed, "duration": duration,
-        "config": config, "profile": profile})
-    return summarize_hover(RunLog(run_dir), profile)
+        "command": command, "seed": seed, "duration": duration,
+        "config": config, "profile": profile, "pilot_stops_at": pilot_stops_at})
+    return RunLog(run_dir)
+
+
+def run_hover(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
+              run_dir: str | Path | None = None, meshcat=None, record=None,
+              realtime_rate: float = 0.0) -> HoverSummary:
+    """The hover demo (`alight hover`): flies the profile and summarizes the flight."""
+    run = fly_profile(config, profile, seed, run_dir, meshcat, record, realtime_rate)
+    return summarize_hover(run, profile)
 
 
 def summarize_hover(run: RunLog, profile: PilotProfile) -> HoverSummary:

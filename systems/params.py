@@ -44,7 +44,8 @@ def load_params(schema: type[T], filename: str | Path | None = None, data: str |
         params = yaml_load_typed(schema=schema, filename=str(filename) if filename else None,
                                  data=data, defaults=defaults)
     except Exception as e:  # Drake raises RuntimeError / yaml errors with the key in the text.
-        raise ConfigError(f"{source}: {e}") from None
+        detail = str(e) if str(e) not in ("", "None") else "malformed or empty entry"
+        raise ConfigError(f"{source}: cannot load as {schema.__name__}: {detail}") from None
     validate(params, source)
     return params
 

@@ -6,8 +6,8 @@ command for `stale_timeout` while armed, the vehicle enters the failsafe descent
 offboard-loss failsafe: level attitude at the current heading, thrust from the configured hover
 thrust with a vertical-speed loop on the flight controller's own estimate, down at
 `failsafe_descent_speed`; it stays in failsafe until it lands and disarms. The land detector
-(low thrust and no vertical motion for `land_time`) disarms, as PX4's auto-disarm; arming again
-needs the arm request to drop and rise.
+(no vertical motion for `land_time` with low thrust, or while the failsafe asks for a descent)
+disarms, as PX4's auto-disarm; arming again needs the arm request to drop and rise.
 """
 import dataclasses as dc
 
@@ -154,10 +154,11 @@ class Commander(LeafSystem):
                                      w_D=FC_COMMAND.get(held, "w_D"),
                                      thrust=FC_COMMAND.get(held, "thrust") if armed else 0.0,
                                      armed=float(armed))
-        # Land detector: low thrust and no vertical motion for land_time -> landed, disarm.
+        # Land detector: no vertical motion with low thrust, or while the failsafe asks for a
+        # descent (ground contact), for land_time -> landed, disarm.
         force = self._curve.force(SETPOINT.get(setpoint, "thrust"))
-        quiet = force < self._p.land_thrust_fraction * self._hover_force \
-            and abs(vz) < self._p.land_speed
+        low_thrust = force < self._p.land_thrust_fraction * self._hover_force
+        quiet = (low_thrust or failsafe) and abs(vz) < self._p.land_speed
         x[L.slice("land_timer")] = x[L.slice("land_timer")] + self._period if armed and quiet \
             else 0.0
         landed = (not armed) or x[L.slice("land_timer")][0] >= self._p.land_time

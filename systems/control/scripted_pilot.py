@@ -13,14 +13,18 @@ from pydrake.math import RollPitchYaw
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import FC_COMMAND, CommandMode
-from alight.systems.params import bounded
+from alight.systems.params import bounded, choice
 from alight.systems.thrust_curve import GRAVITY, ThrustCurve
 
 
 @dc.dataclass
 class ProfileSegment:
+    """One segment. In `attitude` mode roll/pitch/heading are held; in `rates` mode the body rates
+    are commanded instead (the attitude fields are ignored)."""
     duration: float = bounded(1.0, 0.0, 3600.0, "s")
     arm: bool = True
+    mode: str = choice("attitude", "rates")
+    body_rates: list[float] = bounded([0.0, 0.0, 0.0], -300.0, 300.0, "deg/s")
     roll: float = bounded(0.0, -60.0, 60.0, "deg")
     pitch: float = bounded(0.0, -60.0, 60.0, "deg")
     heading: float = bounded(0.0, -360.0, 360.0, "deg")
@@ -69,23 +73,31 @@ def profile_command(profile: PilotProfile, t: float, model: PilotModel) -> np.nd
     tilt = np.cos(rpy.roll_angle()) * np.cos(rpy.pitch_angle())
     drag = model.drag_linear * v_z + model.drag_quadratic * abs(v_z) * v_z
     force = (model.mass * (GRAVITY + segment.vertical_acceleration) + drag) / tilt
-    curve = model.curve
-    return FC_COMMAND.pack(stamp=t, mode=CommandMode.ATTITUDE_THRUST,
-                           q_WD=rpy.ToQuaternion().wxyz(), w_D=np.zeros(3),
-                           thrust=float(curve.thrust(force)) if segment.arm else 0.0,
+    mode = CommandMode.RATES_THRUST if segment.mode == "rates" else CommandMode.ATTITUDE_THRUST
+    return FC_COMMAND.pack(stamp=t, mode=mode, q_WD=rpy.ToQuaternion().wxyz(),
+                           w_D=np.radians(segment.body_rates),
+                           thrust=float(model.curve.thrust(force)) if segment.arm else 0.0,
                            arm=float(segment.arm))
 
 
 class ScriptedPilot(LeafSystem):
-    """Output `fc_command` FC_COMMAND, sampled every `profile.period` and stamped with its time."""
+    """Output `fc_command` FC_COMMAND, sampled every `profile.period` and stamped with its time.
 
-    def __init__(self, profile: PilotProfile, model: PilotModel):
+    With `stop_at`, the output freezes from that time on (a companion computer that stops sending:
+    the flight controller sees the stamp age)."""
+
+    def __init__(self, profile: PilotProfile, model: PilotModel, stop_at: float | None = None):
         super().__init__()
+        if not profile.segments:
+            raise ValueError("the pilot profile has no segments")
         self._profile, self._model = profile, model
+        self._stop_at = np.inf if stop_at is None else stop_at
         command = self.DeclareDiscreteState(FC_COMMAND.size)
         self.DeclarePeriodicDiscreteUpdateEvent(profile.period, 0.0, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
         self.DeclareStateOutputPort("fc_command", command)
 
     def _update(self, context, discrete_state):
+        if context.get_time() >= self._stop_at:
+            return
         discrete_state.set_value(profile_command(self._profile, context.get_time(), self._model))

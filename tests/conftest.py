@@ -1,0 +1,41 @@
+import numpy as np
+import pytest
+
+from alight.diagrams.hover import fly_profile, load_pilot_profile
+from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+from alight.systems.control.scripted_pilot import PilotProfile
+from alight.systems.params import load_params
+
+
+def profile(yaml_segments: str, period: float = 0.02) -> PilotProfile:
+    """A pilot profile from YAML flow-style segments, one per line."""
+    lines = "\n".join(f"  - {line.strip()}" for line in yaml_segments.splitlines()
+                      if line.strip())
+    return load_params(PilotProfile, data=f"period: {period}\nsegments:\n{lines}\n")
+
+
+# Arm, climb to about 3 m and stop there: 7 s. Tests append their own segments.
+TAKEOFF = """
+{duration: 0.5, arm: true, vertical_acceleration: -9.81}
+{duration: 1.5, arm: true, vertical_acceleration: 1.5}
+{duration: 1.5, arm: true, vertical_acceleration: -1.5}
+{duration: 1.5, arm: true, vertical_acceleration: 0.0}
+"""
+TAKEOFF_END = 5.0
+
+
+def tilt_deg(q: np.ndarray) -> np.ndarray:
+    """Angle between z_B and z_W for rows of (w, x, y, z) quaternions."""
+    return np.degrees(np.arccos(np.clip(1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1, 1)))
+
+
+@pytest.fixture(scope="session")
+def vehicle_config():
+    return load_sim_vehicle_config()
+
+
+@pytest.fixture(scope="session")
+def hover_run(tmp_path_factory):
+    """The default hover demo, seed 0 (shared by several tests and the notebook test)."""
+    return fly_profile(load_sim_vehicle_config(), load_pilot_profile(), seed=0,
+                       run_dir=tmp_path_factory.mktemp("runs") / "hover")
