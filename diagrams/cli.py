@@ -48,7 +48,14 @@ def _hover(args) -> int:
     summary = run_hover(config, profile, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
                         record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
     print("\n".join(summary.lines()))
+    _keep_meshcat_open(args)
     return 0
+
+
+def _keep_meshcat_open(args) -> None:
+    """The Meshcat server lives in this process: keep it up until the user is done looking."""
+    if args.meshcat and sys.stdin.isatty():
+        input("Meshcat stays up for browsing the scene; press Enter to exit. ")
 
 
 def make_parser() -> argparse.ArgumentParser:
