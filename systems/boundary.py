@@ -151,3 +151,16 @@ VECTOR_OUTPUTS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS}
 ABSTRACT_OUTPUTS = {"imu": ImuSamples, "rgbd": CameraFrame, "down_image": CameraFrame}
 INPUTS = {"fc_command": FC_COMMAND}
 SIM_ONLY_OUTPUTS = {"ground_truth": GROUND_TRUTH}
+
+
+# --- Onboard contracts (between onboard parts; not vehicle ports) -----------------------------
+
+# `state_estimate` (DESIGN.md "The onboard stack"): stamp [s]; position, velocity, acceleration of B
+# in the active estimator frame E (z up) [m, m/s, m/s^2]; q_EB orientation (w, x, y, z); heading
+# M(3)-(5) and heading rate [rad, rad/s]; variances of [p, v] (6) and of the heading; the id of the
+# active estimator frame and a counter that changes whenever the arbiter switches frames; the
+# transform from the old to the new frame at the last switch (p_OldNew, q_OldNew); valid (0/1).
+STATE_ESTIMATE = VectorLayout("state_estimate", [
+    ("stamp", 1), ("p_EB", 3), ("v_EB", 3), ("a_EB", 3), ("q_EB", 4), ("heading", 1),
+    ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
+    ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)])
