@@ -164,3 +164,25 @@ STATE_ESTIMATE = VectorLayout("state_estimate", [
     ("stamp", 1), ("p_EB", 3), ("v_EB", 3), ("a_EB", 3), ("q_EB", 4), ("heading", 1),
     ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
     ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)])
+
+# `reference` chi of M(16), produced by trackers for controllers: position, velocity, acceleration,
+# jerk of the desired body position in the estimator frame E [m, m/s, m/s^2, m/s^3]; heading and
+# heading rate [rad, rad/s]. The landing paper's MPC reads position and velocity (L Sec. 6.3).
+REFERENCE = VectorLayout("reference", [
+    ("stamp", 1), ("p", 3), ("v", 3), ("a", 3), ("j", 3), ("heading", 1), ("heading_rate", 1)])
+
+# `controller_status`, next to every controller's `fc_command` output: valid (0/1: the command is
+# usable; 0 means the control manager must fall back), reason (controller-specific code, 0 = ok),
+# compute time of the last tick [s], solver status (solver-specific code, 0 = solved or n/a).
+CONTROLLER_STATUS = VectorLayout("controller_status", [
+    ("valid", 1), ("reason", 1), ("compute_time", 1), ("solver_status", 1)])
+
+# The controller contract (DESIGN.md "The onboard stack"): every controller is a LeafSystem with
+# inputs `state_estimate` (STATE_ESTIMATE), `reference` (REFERENCE), `active` (1: only the active one
+# computes), `last_command` (FC_COMMAND: the command last issued by whichever controller was active;
+# a controller that becomes active starts from it, M Sec. 7.2), and outputs `fc_command`
+# (FC_COMMAND, never NaN or out of range) and `controller_status` (CONTROLLER_STATUS). Controllers
+# may add outputs of their own (e.g. `desired_acceleration`, M(53)).
+CONTROLLER_INPUTS = {"state_estimate": STATE_ESTIMATE, "reference": REFERENCE, "active": None,
+                     "last_command": FC_COMMAND}
+CONTROLLER_OUTPUTS = {"fc_command": FC_COMMAND, "controller_status": CONTROLLER_STATUS}
