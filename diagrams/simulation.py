@@ -4,6 +4,7 @@ from pathlib import Path
 from pydrake.common import RandomGenerator
 from pydrake.geometry import Meshcat, StartMeshcat
 from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import EventStatus
 
 from alight.diagrams.visualization import start_recording, write_recording
 
@@ -19,9 +20,14 @@ def make_meshcat(live: bool, record: str | Path | None) -> Meshcat | None:
 
 
 def simulate(diagram, duration: float, seed: int, meshcat: Meshcat | None = None,
-             record: str | Path | None = None, realtime_rate: float = 0.0) -> Simulator:
-    """Seeds every random source from `seed`, runs to `duration` and writes the replay if asked."""
+             record: str | Path | None = None, realtime_rate: float = 0.0,
+             stop_when=None) -> Simulator:
+    """Seeds every random source from `seed`, runs to `duration` (or until `stop_when(context)`
+    is true) and writes the replay if asked."""
     simulator = Simulator(diagram)
+    if stop_when is not None:
+        simulator.set_monitor(lambda context: EventStatus.ReachedTermination(
+            diagram, "done") if stop_when(context) else EventStatus.Succeeded())
     context = simulator.get_mutable_context()
     diagram.SetRandomContext(context, RandomGenerator(seed))
     simulator.set_target_realtime_rate(realtime_rate)

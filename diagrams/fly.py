@@ -1,0 +1,117 @@
+"""Flies waypoints with the landing paper's linear MPC on the simulated vehicle (`alight fly`)."""
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, VectorLogSink
+
+from alight.diagrams.hover import default_run_dir
+from alight.diagrams.mocap import add_mocap
+from alight.diagrams.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.simulation import simulate
+from alight.models import model_path
+from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE
+from alight.systems.control.arm_gate import ArmGate
+from alight.systems.control.linear_model import LinearModelParams
+from alight.systems.control.linear_mpc import LinearMpc, LinearMpcParams
+from alight.systems.mission.waypoints import Phase, WaypointMission, WaypointMissionParams
+from alight.systems.params import load_params
+from alight.systems.sensors.mocap import MocapParams
+
+
+def load_linear_model(filename: str = "linear_model.yaml") -> LinearModelParams:
+    return load_params(LinearModelParams, model_path(filename))
+
+
+def load_linear_mpc(filename: str = "linear_mpc.yaml") -> LinearMpcParams:
+    return load_params(LinearMpcParams, model_path(filename))
+
+
+def parse_waypoints(text: str) -> np.ndarray:
+    """'0,0,5; 10,0,5' -> array of x,y,z rows; a clear error for anything else."""
+    try:
+        rows = [[float(v) for v in item.split(",")] for item in text.split(";") if item.strip()]
+    except ValueError:
+        raise ValueError(f"waypoints must look like '0,0,5; 10,0,5', got {text!r}") from None
+    if not rows or any(len(r) != 3 for r in rows) or not np.all(np.isfinite(rows)):
+        raise ValueError(f"waypoints must be finite x,y,z triples separated by ';', got {text!r}")
+    return np.array(rows)
+
+
+@dc.dataclass
+class MpcLoop:
+    """Handles to the parts of a closed MPC loop built by `add_mpc_loop`."""
+    vehicle: object
+    mpc: LinearMpc
+    state_estimate_port: object
+    command_port: object
+    sinks: dict  # name -> (VectorLogSink, VectorLayout), for write_run_folder
+
+
+def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, meshcat=None,
+                 mpc_params: LinearMpcParams | None = None,
+                 model: LinearModelParams | None = None, mocap: MocapParams | None = None,
+                 estimate_filter=None) -> MpcLoop:
+    """Simulated vehicle + mocap odometry + linear MPC (+ arm gate) following `reference_port`.
+    `estimate_filter(builder, port) -> port` may alter the estimate (fault injection in tests)."""
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
+    estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
+    if estimate_filter is not None:
+        estimate = estimate_filter(builder, estimate)
+    mpc = builder.AddNamedSystem("linear_mpc", LinearMpc(model or load_linear_model(),
+                                                         mpc_params or load_linear_mpc()))
+    gate = builder.AddNamedSystem("arm_gate", ArmGate())
+    active = builder.AddNamedSystem("mpc_active", ConstantVectorSource([1.0]))
+    builder.Connect(estimate, mpc.GetInputPort("state_estimate"))
+    builder.Connect(reference_port, mpc.GetInputPort("reference"))
+    builder.Connect(active.get_output_port(), mpc.GetInputPort("active"))
+    builder.Connect(vehicle.GetOutputPort("fc_attitude"), mpc.GetInputPort("fc_attitude"))
+    builder.Connect(mpc.GetOutputPort("fc_command"), gate.GetInputPort("fc_command"))
+    builder.Connect(arm_port, gate.GetInputPort("arm"))
+    builder.Connect(gate.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    builder.Connect(gate.GetOutputPort("fc_command"), mpc.GetInputPort("last_command"))
+    sinks = {}
+    for name, port, layout in (("state_estimate", estimate, STATE_ESTIMATE),
+                               ("reference", reference_port, REFERENCE),
+                               ("controller_status", mpc.GetOutputPort("controller_status"),
+                                CONTROLLER_STATUS)):
+        sink = builder.AddNamedSystem(f"log_{name}", VectorLogSink(layout.size, 0.05))
+        builder.Connect(port, sink.get_input_port())
+        sinks[name] = (sink, layout)
+    return MpcLoop(vehicle, mpc, estimate, gate.GetOutputPort("fc_command"), sinks)
+
+
+def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0,
+                  run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
+                  mission: WaypointMissionParams | None = None, max_duration: float = 300.0
+                  ) -> RunLog:
+    """Takes off, visits the waypoints with the linear MPC, lands and disarms."""
+    builder = DiagramBuilder()
+    mission_system = WaypointMission(waypoints, mission or WaypointMissionParams())
+    builder.AddNamedSystem("mission", mission_system)
+    loop = add_mpc_loop(builder, config, mission_system.GetOutputPort("reference"),
+                        mission_system.GetOutputPort("arm"), meshcat)
+    builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
+    loggers = add_run_logging(builder, loop.vehicle, loop.command_port)
+    loggers.vector_sinks.update(loop.sinks)
+    phase = builder.ExportOutput(mission_system.GetOutputPort("phase"), "phase")
+    diagram = builder.Build()
+    landed = lambda context: diagram.get_output_port(phase).Eval(context)[0] == Phase.LANDED
+    simulator = simulate(diagram, _mission_duration(waypoints, max_duration), seed, meshcat,
+                         record, realtime_rate, stop_when=landed)
+    duration = simulator.get_context().get_time()
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("fly", seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {
+        "command": "fly", "seed": seed, "duration": duration, "config": config,
+        "waypoints": waypoints, "landed": bool(landed(simulator.get_context())),
+        "mpc": load_linear_mpc(), "model": load_linear_model()})
+    return RunLog(run_dir)
+
+
+def _mission_duration(waypoints: np.ndarray, max_duration: float) -> float:
+    """A generous time budget: climb, legs at 2 m/s, landing, plus settling."""
+    legs = np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum() if len(waypoints) > 1 else 0.0
+    return min(max_duration, 15.0 + np.linalg.norm(waypoints[0]) / 2 + legs / 2.0
+               + waypoints[:, 2].max() / 0.6 + 5.0 * len(waypoints))

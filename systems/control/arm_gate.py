@@ -1,0 +1,27 @@
+"""Applies the mission's arm request to a controller's command (disarmed: zero thrust, arm 0)."""
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import FC_COMMAND
+
+
+class ArmGate(LeafSystem):
+    """Input  `fc_command` FC_COMMAND from the controller
+    Input  `arm`        (2) the mission's arm request and thrust enable (0: thrust held at zero,
+                        as the flight controller arms only at low thrust)
+    Output `fc_command` FC_COMMAND with the arm request applied
+    """
+
+    def __init__(self):
+        super().__init__()
+        self._command = self.DeclareVectorInputPort("fc_command", FC_COMMAND.size)
+        self._arm = self.DeclareVectorInputPort("arm", 2)
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc)
+
+    def _calc(self, context, output):
+        command = self._command.Eval(context).copy()
+        arm, thrust_enable = self._arm.Eval(context)
+        command[FC_COMMAND.slice("arm")] = float(arm > 0.5)
+        if arm < 0.5 or thrust_enable < 0.5:
+            command[FC_COMMAND.slice("thrust")] = 0.0
+        output.SetFromVector(command)

@@ -1,0 +1,233 @@
+"""The landing paper's position controller: linear MPC with soft state constraints, L(19)-(27).
+
+Condensed QP over t = [u_0..u_{N-1}, s]: the predicted states x = Phi x0 + Gamma u (L(23)); cost
+L(20) on position and velocity (and angle, rate) errors against the reference and on inputs against
+the input that holds the reference velocity; hard bounds on commanded pitch, roll and thrust; soft
+bounds on velocity and attitude with slacks s >= 0 penalized by lambda (L(25)-(26)), so the QP is
+feasible in every state. The MathematicalProgram (solved by OSQP) is built once; each tick only the
+linear cost term and the soft-constraint bounds change (L(27)).
+
+The reference position moves along the reference velocity over the horizon (L Sec. 6.3 notes the
+formulation handles a time-varying reference; a static one over a long horizon lags behind a
+moving target by about v * horizon / 2).
+"""
+import dataclasses as dc
+import enum
+import time
+
+import numpy as np
+from pydrake.math import RollPitchYaw
+from pydrake.solvers import MathematicalProgram, OsqpSolver, SolverOptions
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
+                                     STATE_ESTIMATE, CommandMode)
+from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
+                                                 LinearModelParams, continuous_model, discretize,
+                                                 model_state, rotate_to_navigation)
+from alight.systems.params import bounded
+from alight.systems.thrust_curve import ThrustCurve
+
+
+@dc.dataclass
+class LinearMpcParams:
+    period: float = bounded(0.05, 0.005, 0.5, "s")          # L Sec. 6.1: 50 ms
+    horizon_steps: int = bounded(20, 2, 200)                # 1 s at 50 ms
+    weight_position: list[float] = bounded([4.0, 4.0, 8.0], 0.0, 1e6)
+    weight_velocity: list[float] = bounded([1.5, 1.5, 2.0], 0.0, 1e6)
+    weight_angles: list[float] = bounded([0.0, 0.0], 0.0, 1e6)   # pitch, roll
+    weight_rates: list[float] = bounded([0.05, 0.05], 0.0, 1e6)
+    weight_input: list[float] = bounded([20.0, 20.0, 0.2], 0.0, 1e6)  # pitch_r, roll_r, T_r
+    max_tilt_command: float = bounded(30.0, 1.0, 60.0, "deg")  # hard input bound
+    thrust_acceleration: list[float] = bounded([-6.0, 8.0], -9.81, 30.0, "m/s^2")  # T_r bounds
+    max_velocity: list[float] = bounded([6.0, 6.0, 2.5], 0.1, 30.0, "m/s")  # soft
+    max_tilt: float = bounded(20.0, 1.0, 60.0, "deg")                       # soft
+    slack_penalty: float = bounded(1000.0, 0.0, 1e9)                        # lambda of L(25)
+    osqp_eps: float = bounded(1e-4, 1e-8, 1e-1)
+
+
+class MpcReason(enum.IntEnum):
+    OK = 0
+    FALLBACK = 1        # solver failed: the previous solution's next input was used once
+    SOLVER_FAILED = 2   # failed again: the command is a safe level hover, not to be flown
+    INACTIVE = 3
+    BAD_ESTIMATE = 4
+
+
+def prediction_matrices(Ad: np.ndarray, Bd: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """Phi and Gamma of L(23): x_bar = Phi x0 + Gamma u_bar."""
+    n, m = Bd.shape
+    Phi = np.zeros((N * n, n))
+    Gamma = np.zeros((N * n, N * m))
+    power = np.eye(n)
+    for k in range(N):
+        power = Ad @ power
+        Phi[k * n:(k + 1) * n] = power
+        for j in range(k + 1):
+            Gamma[k * n:(k + 1) * n, j * m:(j + 1) * m] = np.linalg.matrix_power(Ad, k - j) @ Bd
+    return Phi, Gamma
+
+
+def soft_constraint_rows() -> np.ndarray:
+    """G of one step: +-v_x, +-v_y, +-v_z, +-theta, +-phi <= h."""
+    G = np.zeros((10, NUM_STATES))
+    for i, state in enumerate([3, 4, 5, 6, 7]):
+        G[2 * i, state], G[2 * i + 1, state] = 1.0, -1.0
+    return G
+
+
+class LinearMpcQp:
+    """The QP L(26)-(27), built once as a MathematicalProgram; `solve(x0, s_y, s_u)` per tick."""
+
+    def __init__(self, model: LinearModelParams, p: LinearMpcParams):
+        N, n, m = p.horizon_steps, NUM_STATES, NUM_INPUTS
+        self.N = N
+        Ad, Bd = discretize(*continuous_model(model), p.period)
+        self.Phi, self.Gamma = prediction_matrices(Ad, Bd, N)
+        w_state = np.concatenate([p.weight_position, p.weight_velocity, p.weight_angles,
+                                  p.weight_rates])
+        self.W = np.tile(w_state, N)
+        self.Rw = np.tile(p.weight_input, N)
+        G = soft_constraint_rows()
+        self.G_bar = np.kron(np.eye(N), G)
+        h_step = np.repeat(np.concatenate([p.max_velocity, np.radians([p.max_tilt] * 2)]), 2)
+        self.h = np.tile(h_step, N)
+        num_slacks = len(self.h)
+        self.prog = MathematicalProgram()
+        self.u = self.prog.NewContinuousVariables(N * m, "u")
+        self.s = self.prog.NewContinuousVariables(num_slacks, "s")
+        H = self.Gamma.T @ (self.W[:, None] * self.Gamma) + np.diag(self.Rw)
+        self._H2 = 2.0 * H
+        self.cost = self.prog.AddQuadraticCost(self._H2, np.zeros(N * m), self.u, is_convex=True)
+        self.prog.AddLinearCost(p.slack_penalty * np.ones(num_slacks), 0.0, self.s)
+        tilt = np.radians(p.max_tilt_command)
+        lower = np.tile([-tilt, -tilt, p.thrust_acceleration[0]], N)
+        upper = np.tile([tilt, tilt, p.thrust_acceleration[1]], N)
+        self.prog.AddBoundingBoxConstraint(lower, upper, self.u)
+        self.prog.AddBoundingBoxConstraint(0.0, np.inf, self.s)
+        self.GGamma = self.G_bar @ self.Gamma
+        self.soft = self.prog.AddLinearConstraint(
+            np.hstack([self.GGamma, -np.eye(num_slacks)]), np.full(num_slacks, -np.inf),
+            self.h.copy(), np.concatenate([self.u, self.s]))
+        self.solver = OsqpSolver()
+        self.options = SolverOptions()
+        for name, value in (("eps_abs", p.osqp_eps), ("eps_rel", p.osqp_eps),
+                            ("max_iter", 4000), ("polishing", 1)):
+            self.options.SetOption(OsqpSolver.id(), name, value)
+
+    def update(self, x0: np.ndarray, s_y: np.ndarray, s_u: np.ndarray) -> None:
+        """New linear cost term and soft bounds for the state x0 and references (N*n, N*m)."""
+        f = self.Gamma.T @ (self.W * (self.Phi @ x0 - s_y)) - self.Rw * s_u
+        self.cost.evaluator().UpdateCoefficients(self._H2, 2.0 * f, 0.0, True)
+        self.soft.evaluator().UpdateUpperBound(self.h - self.G_bar @ (self.Phi @ x0))
+
+    def solve(self):
+        result = self.solver.Solve(self.prog, None, self.options)
+        u = result.GetSolution(self.u)
+        return result.is_success() and np.all(np.isfinite(u)), u.reshape(self.N, NUM_INPUTS), \
+            int(result.get_solver_details().status_val), result
+
+
+# Unrestricted state: fc_command, controller_status, previous solution, consecutive failures.
+class LinearMpc(LeafSystem):
+    """Inputs  `state_estimate` STATE_ESTIMATE; `reference` REFERENCE (position, velocity, heading);
+            `active` (1); `last_command` FC_COMMAND; `fc_attitude` FC_ATTITUDE (body rates for L(17))
+    Outputs `fc_command` FC_COMMAND (attitude+thrust), `controller_status` CONTROLLER_STATUS,
+            `prediction` (N x 3 inputs of the last solution, flattened)
+    """
+
+    def __init__(self, model: LinearModelParams, params: LinearMpcParams):
+        super().__init__()
+        self._model, self._p = model, params
+        self._qp = LinearMpcQp(model, params)
+        self._curve = ThrustCurve(model.thrust_a, model.thrust_b)
+        N = params.horizon_steps
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self._active = self.DeclareVectorInputPort("active", 1)
+        self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
+        self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
+        self._command = self.DeclareDiscreteState(self._hover_command(0.0, 0.0))
+        self._status = self.DeclareDiscreteState(CONTROLLER_STATUS.pack(
+            valid=0.0, reason=MpcReason.INACTIVE, compute_time=0.0, solver_status=0.0))
+        self._solution = self.DeclareDiscreteState(np.full(N * NUM_INPUTS, np.nan))
+        self._failures = self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareStateOutputPort("fc_command", self._command)
+        self.DeclareStateOutputPort("controller_status", self._status)
+        self.DeclareStateOutputPort("prediction", self._solution)
+
+    def _hover_command(self, stamp: float, heading: float) -> np.ndarray:
+        thrust = float(self._curve.thrust(self._model.mass * GRAVITY))
+        return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
+                               q_WD=RollPitchYaw(0, 0, heading).ToQuaternion().wxyz(),
+                               w_D=np.zeros(3), thrust=thrust, arm=1.0)
+
+    def _to_command(self, u: np.ndarray, stamp: float, heading: float) -> np.ndarray:
+        """Attitude from the commanded pitch/roll and the reference heading; thrust with the
+        gravity feedforward and tilt compensation through the thrust curve M(32)."""
+        pitch, roll, thrust_acceleration = u
+        force = self._model.mass * (GRAVITY + thrust_acceleration) / (np.cos(pitch) * np.cos(roll))
+        return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
+                               q_WD=RollPitchYaw(roll, pitch, heading).ToQuaternion().wxyz(),
+                               w_D=np.zeros(3), thrust=float(self._curve.thrust(force)), arm=1.0)
+
+    def references(self, reference: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+        """s_y (N*n) and s_u (N*m) in N, relative to the reference position at t = 0."""
+        N, dt, m = self._p.horizon_steps, self._p.period, self._model
+        v_N = rotate_to_navigation(REFERENCE.get(reference, "v"), yaw)
+        s_y = np.zeros((N, NUM_STATES))
+        s_y[:, 0:3] = np.outer(np.arange(1, N + 1) * dt, v_N)
+        s_y[:, 3:6] = v_N
+        hold = np.array([m.c_x * v_N[0] / GRAVITY, -m.c_y * v_N[1] / GRAVITY, m.c_z * v_N[2]])
+        s_y[:, 6:8] = hold[:2]
+        return s_y.ravel(), np.tile(hold, N)
+
+    def _update(self, context, discrete_state):
+        now = context.get_time()
+        estimate = self._estimate.Eval(context)
+        reference = self._reference.Eval(context)
+        if self._active.Eval(context)[0] < 0.5:
+            discrete_state.set_value(self._command, self._last.Eval(context))
+            discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
+                valid=0.0, reason=MpcReason.INACTIVE, compute_time=0.0, solver_status=0.0))
+            discrete_state.set_value(self._failures, [0.0])
+            return
+        start = time.perf_counter()
+        heading = float(REFERENCE.get(reference, "heading"))
+        if STATE_ESTIMATE.get(estimate, "valid") < 0.5 or not np.all(np.isfinite(estimate)) \
+                or not np.all(np.isfinite(reference)):
+            self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0, start)
+            return
+        x0, yaw = model_state(STATE_ESTIMATE.get(estimate, "p_EB"),
+                              STATE_ESTIMATE.get(estimate, "v_EB"),
+                              STATE_ESTIMATE.get(estimate, "q_EB"),
+                              FC_ATTITUDE.get(self._attitude.Eval(context), "w_B"),
+                              REFERENCE.get(reference, "p"))
+        self._qp.update(x0, *self.references(reference, yaw))
+        ok, u, solver_status, _ = self._qp.solve()
+        if not ok:
+            self._fail(context, discrete_state, now, heading, MpcReason.FALLBACK, solver_status,
+                       start)
+            return
+        discrete_state.set_value(self._command, self._to_command(u[0], now, heading))
+        discrete_state.set_value(self._solution, u.ravel())
+        discrete_state.set_value(self._failures, [0.0])
+        discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
+            valid=1.0, reason=MpcReason.OK, compute_time=time.perf_counter() - start,
+            solver_status=solver_status))
+
+    def _fail(self, context, discrete_state, now, heading, reason, solver_status, start):
+        """Previous solution's next input once; then an invalid (but finite) level hover command."""
+        failures = context.get_discrete_state(self._failures).get_value()[0]
+        previous = context.get_discrete_state(self._solution).get_value().reshape(-1, NUM_INPUTS)
+        if reason == MpcReason.FALLBACK and failures == 0 and np.all(np.isfinite(previous[1])):
+            command, valid = self._to_command(previous[1], now, heading), 1.0
+        else:
+            command, valid = self._hover_command(now, heading), 0.0
+            reason = MpcReason.SOLVER_FAILED if reason == MpcReason.FALLBACK else reason
+        discrete_state.set_value(self._command, command)
+        discrete_state.set_value(self._failures, [failures + 1])
+        discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
+            valid=valid, reason=reason, compute_time=time.perf_counter() - start,
+            solver_status=solver_status))

@@ -1,0 +1,1 @@
+"""Mission-level systems: what the vehicle should do next."""
