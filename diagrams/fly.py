@@ -4,11 +4,11 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource, VectorLogSink
+from pydrake.systems.primitives import ConstantVectorSource
 
 from alight.diagrams.hover import default_run_dir
 from alight.diagrams.mocap import add_mocap
-from alight.diagrams.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
 from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.diagrams.simulation import simulate
 from alight.models import model_path
@@ -47,7 +47,7 @@ class MpcLoop:
     mpc: LinearMpc
     state_estimate_port: object
     command_port: object
-    sinks: dict  # name -> (VectorLogSink, VectorLayout), for write_run_folder
+    mpc_period: float
 
 
 def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, meshcat=None,
@@ -60,8 +60,8 @@ def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, me
     estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
     if estimate_filter is not None:
         estimate = estimate_filter(builder, estimate)
-    mpc = builder.AddNamedSystem("linear_mpc", LinearMpc(model or load_linear_model(),
-                                                         mpc_params or load_linear_mpc()))
+    mpc_params = mpc_params or load_linear_mpc()
+    mpc = builder.AddNamedSystem("linear_mpc", LinearMpc(model or load_linear_model(), mpc_params))
     gate = builder.AddNamedSystem("arm_gate", ArmGate())
     active = builder.AddNamedSystem("mpc_active", ConstantVectorSource([1.0]))
     builder.Connect(estimate, mpc.GetInputPort("state_estimate"))
@@ -72,15 +72,17 @@ def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, me
     builder.Connect(arm_port, gate.GetInputPort("arm"))
     builder.Connect(gate.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     builder.Connect(gate.GetOutputPort("fc_command"), mpc.GetInputPort("last_command"))
-    sinks = {}
-    for name, port, layout in (("state_estimate", estimate, STATE_ESTIMATE),
-                               ("reference", reference_port, REFERENCE),
-                               ("controller_status", mpc.GetOutputPort("controller_status"),
-                                CONTROLLER_STATUS)):
-        sink = builder.AddNamedSystem(f"log_{name}", VectorLogSink(layout.size, 0.05))
-        builder.Connect(port, sink.get_input_port())
-        sinks[name] = (sink, layout)
-    return MpcLoop(vehicle, mpc, estimate, gate.GetOutputPort("fc_command"), sinks)
+    return MpcLoop(vehicle, mpc, estimate, gate.GetOutputPort("fc_command"), mpc_params.period)
+
+
+def add_mpc_logging(builder, loop: MpcLoop, reference_port) -> RunLoggers:
+    """The vehicle's streams plus the estimate, the reference and the controller status."""
+    loggers = add_run_logging(builder, loop.vehicle, loop.command_port)
+    loggers.add(builder, "state_estimate", loop.state_estimate_port, STATE_ESTIMATE)
+    loggers.add(builder, "reference", reference_port, REFERENCE)
+    loggers.add(builder, "controller_status", loop.mpc.GetOutputPort("controller_status"),
+                CONTROLLER_STATUS, period=loop.mpc_period)
+    return loggers
 
 
 def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0,
@@ -94,8 +96,7 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
     loop = add_mpc_loop(builder, config, mission_system.GetOutputPort("reference"),
                         mission_system.GetOutputPort("arm"), meshcat)
     builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
-    loggers = add_run_logging(builder, loop.vehicle, loop.command_port)
-    loggers.vector_sinks.update(loop.sinks)
+    loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
     phase = builder.ExportOutput(mission_system.GetOutputPort("phase"), "phase")
     diagram = builder.Build()
     landed = lambda context: diagram.get_output_port(phase).Eval(context)[0] == Phase.LANDED

@@ -59,6 +59,12 @@ class RunLoggers:
     vector_sinks: dict[str, tuple[VectorLogSink, VectorLayout]]
     imu_sink: ImuLogSink | None
 
+    def add(self, builder, name: str, port, layout: VectorLayout, period: float = 0.01) -> None:
+        """Logs one more vector port as stream `name`."""
+        sink = builder.AddNamedSystem(f"log_{name}", VectorLogSink(layout.size, period))
+        builder.Connect(port, sink.get_input_port())
+        self.vector_sinks[name] = (sink, layout)
+
 
 def add_run_logging(builder, vehicle, command_port=None, period: float = 0.01) -> RunLoggers:
     """Logs the vehicle's vector outputs, its IMU and (if given) the command sent to it."""
@@ -68,14 +74,12 @@ def add_run_logging(builder, vehicle, command_port=None, period: float = 0.01) -
         ports["ground_truth"] = (vehicle.GetOutputPort("ground_truth"), GROUND_TRUTH)
     if command_port is not None:
         ports["fc_command"] = (command_port, FC_COMMAND)
-    sinks = {}
-    for name, (port, layout) in ports.items():
-        sink = builder.AddNamedSystem(f"log_{name}", VectorLogSink(layout.size, period))
-        builder.Connect(port, sink.get_input_port())
-        sinks[name] = (sink, layout)
     imu_sink = builder.AddNamedSystem("log_imu", ImuLogSink(period=0.1))
     builder.Connect(vehicle.GetOutputPort("imu"), imu_sink.get_input_port())
-    return RunLoggers(sinks, imu_sink)
+    loggers = RunLoggers({}, imu_sink)
+    for name, (port, layout) in ports.items():
+        loggers.add(builder, name, port, layout, period)
+    return loggers
 
 
 def _versions() -> dict:

@@ -21,9 +21,9 @@ from alight.systems.rotations import (quaternion_from_rotation_vector, quaternio
 class MocapParams:
     period: float = bounded(0.01, 0.001, 1.0, "s")             # 100 Hz
     latency: float = bounded(0.02, 0.0, 1.0, "s")              # rounded to whole periods
-    position_noise_std: float = bounded(0.005, 0.0, 1.0, "m")
+    position_noise_std: float = bounded(0.001, 0.0, 1.0, "m")    # Vicon/OptiTrack class
     attitude_noise_std: float = bounded(0.3, 0.0, 10.0, "deg")
-    velocity_filter: float = bounded(0.5, 0.0, 0.99)  # weight of the previous velocity (smoothing)
+    velocity_filter: float = bounded(0.6, 0.0, 0.99)  # weight of the previous velocity (smoothing)
 
 
 class Mocap(LeafSystem):

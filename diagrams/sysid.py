@@ -1,0 +1,209 @@
+"""System identification of the landing paper's model, L Sec. 6.1 (`alight sysid`).
+
+Simulated vehicle: one flight exciting each axis alone (fit set) and one exciting all axes at once
+(validation set), flown by the pilot-like ExcitationPilot through the attitude+thrust interface with
+mocap odometry; the fit L(11)-(12) is reported as VAF per signal on the validation set with a plot
+like L Fig. 6, and written to a YAML file the MPC reads. PX4 logs: the attitude model L(12) from
+`vehicle_attitude_setpoint` and `vehicle_attitude`.
+"""
+import copy
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.yaml import yaml_dump_typed
+from pydrake.systems.framework import DiagramBuilder
+
+from alight.diagrams.hover import default_run_dir, pilot_model
+from alight.diagrams.mocap import add_mocap
+from alight.diagrams.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.simulation import simulate
+from alight.systems.boundary import STATE_ESTIMATE
+from alight.systems.control.excitation_pilot import (ExcitationParams, ExcitationPilot,
+                                                     ExcitationSegment)
+from alight.systems.control.identification import (AxisData, IdentificationError,
+                                                   damped_velocity_windows, fit_attitude_axis,
+                                                   fit_damping, simulate_attitude, vaf)
+from alight.systems.control.linear_model import (GRAVITY, LinearModelParams, euler_pitch_roll_yaw,
+                                                 rotate_to_navigation)
+from alight.systems.plant.hexacopter import load_hexacopter_params
+from alight.systems.sensors.mocap import MocapParams
+from alight.systems.thrust_curve import ThrustCurve
+
+SIGNALS = ("pitch", "roll", "vx", "vy", "vz")
+
+
+def fly_excitation(config: SimVehicleConfig, params: ExcitationParams, seed: int,
+                   run_dir: Path) -> RunLog:
+    """One excitation flight with mocap odometry, logged to `run_dir`."""
+    builder = DiagramBuilder()
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config))
+    estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), MocapParams())
+    model = pilot_model(config)
+    pilot = builder.AddNamedSystem("pilot", ExcitationPilot(params, model.mass, model.curve))
+    builder.Connect(estimate, pilot.GetInputPort("state_estimate"))
+    builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    loggers = add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command"))
+    loggers.add(builder, "state_estimate", estimate, STATE_ESTIMATE)
+    simulator = simulate(builder.Build(), params.duration, seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {
+        "command": "sysid", "seed": seed, "duration": params.duration, "config": config,
+        "excitation": params})
+    return RunLog(run_dir)
+
+
+def axis_data(run: RunLog, t_start: float, t_end: float, mass: float, curve: ThrustCurve,
+              dt: float = 0.02) -> AxisData:
+    """Uniformly resampled commanded and measured signals of a run between two times."""
+    t = np.arange(t_start, t_end, dt)
+    command = run["fc_command"]
+    held = np.searchsorted(command["time"].to_numpy(), t, side="right") - 1  # zero-order hold
+    q_ref = run.field("fc_command", "q_WD").to_numpy()[held]
+    estimate = run["state_estimate"]
+    te = estimate["time"].to_numpy()
+    interp = lambda column: np.interp(t, te, estimate[column].to_numpy())
+    q = np.stack([interp(f"q_EB_{i}") for i in range(4)], axis=1)
+    v_W = np.stack([interp(f"v_EB_{i}") for i in range(3)], axis=1)
+    ref_angles = np.array([euler_pitch_roll_yaw(x)[:2] for x in q_ref])
+    angles = np.array([euler_pitch_roll_yaw(x) for x in q])
+    v_N = np.array([rotate_to_navigation(v, yaw) for v, yaw in zip(v_W, angles[:, 2])])
+    thrust = command["thrust"].to_numpy()[held]
+    tilt = np.cos(angles[:, 0]) * np.cos(angles[:, 1])
+    thrust_acc = curve.force(thrust) * tilt / mass - GRAVITY
+    return AxisData(dt, ref_angles[:, 0], ref_angles[:, 1], angles[:, 0], angles[:, 1], v_N,
+                    thrust_acc)
+
+
+def _velocity_drives(data: AxisData) -> np.ndarray:
+    """The inputs of L(11) per axis: g theta, -g phi, T (measured attitude, commanded thrust)."""
+    return np.stack([GRAVITY * data.pitch, -GRAVITY * data.roll, data.thrust_acc], axis=1)
+
+
+def simulate_signals(params: LinearModelParams, data: AxisData) -> dict[str, np.ndarray]:
+    """The model's response to the data's inputs: attitude from the commands over the whole record,
+    velocities from the measured attitude over 5 s windows restarted at the measured velocity."""
+    rate = lambda angle: (angle[1] - angle[0]) / data.dt
+    out = {"pitch": simulate_attitude(params.pitch, data.pitch_ref, data.dt,
+                                      (data.pitch[0], rate(data.pitch))),
+           "roll": simulate_attitude(params.roll, data.roll_ref, data.dt,
+                                     (data.roll[0], rate(data.roll)))}
+    drives = _velocity_drives(data)
+    for axis, (name, c) in enumerate((("vx", params.c_x), ("vy", params.c_y),
+                                      ("vz", params.c_z))):
+        out[name] = damped_velocity_windows(c, drives[:, axis], data.velocity_N[:, axis], data.dt)
+    return out
+
+
+def measured_signals(data: AxisData) -> dict[str, np.ndarray]:
+    return {"pitch": data.pitch, "roll": data.roll, "vx": data.velocity_N[:, 0],
+            "vy": data.velocity_N[:, 1], "vz": data.velocity_N[:, 2]}
+
+
+@dc.dataclass
+class SysidReport:
+    params: LinearModelParams
+    vaf: dict[str, float]                 # per signal, on the validation set
+    validation: AxisData
+    simulated: dict[str, np.ndarray]
+
+    def lines(self) -> list[str]:
+        p = self.params
+        return ["identified L(11)-(12):",
+                f"  c_x {p.c_x:.3f}  c_y {p.c_y:.3f}  c_z {p.c_z:.3f}  [1/s]",
+                *(f"  {name:5s} stiffness {m.stiffness:7.2f}  damping {m.damping:6.2f}  gain "
+                  f"{m.gain:7.2f}  (DC gain {m.dc_gain():.3f})"
+                  for name, m in (("pitch", p.pitch), ("roll", p.roll))),
+                "validation VAF: " + "  ".join(f"{k} {100 * v:.1f} %" for k, v in
+                                               self.vaf.items())]
+
+
+def identify(fit: dict[str, AxisData], validation: AxisData, mass: float,
+             curve: ThrustCurve) -> SysidReport:
+    """Fits pitch/roll L(12) and c_x, c_y, c_z L(11) on single-axis data, validates on `validation`.
+    `fit` maps 'pitch', 'roll', 'thrust' to the data where that axis alone was excited."""
+    pitch = fit_attitude_axis(fit["pitch"].pitch_ref, fit["pitch"].pitch, fit["pitch"].dt,
+                              "pitch")
+    roll = fit_attitude_axis(fit["roll"].roll_ref, fit["roll"].roll, fit["roll"].dt, "roll")
+    damping = []
+    for axis, key in ((0, "pitch"), (1, "roll"), (2, "thrust")):
+        data = fit[key]
+        # The thrust drive is the command (the motors' lag is unmeasured): search its delay.
+        c, _ = fit_damping(_velocity_drives(data)[:, axis], data.velocity_N[:, axis], data.dt,
+                           f"axis {axis}", max_delay=0.1 if axis == 2 else 0.0)
+        damping.append(c)
+    params = LinearModelParams(c_x=damping[0], c_y=damping[1], c_z=damping[2], pitch=pitch,
+                               roll=roll, mass=mass, thrust_a=curve.a_t, thrust_b=curve.b_t)
+    simulated = simulate_signals(params, validation)
+    measured = measured_signals(validation)
+    return SysidReport(params, {k: vaf(measured[k], simulated[k]) for k in SIGNALS}, validation,
+                       simulated)
+
+
+FIT_FLIGHT = [ExcitationSegment(25.0, "pitch"), ExcitationSegment(25.0, "roll"),
+              ExcitationSegment(20.0, "thrust")]
+VALIDATION_FLIGHT = [ExcitationSegment(30.0, "all")]
+
+
+def run_sysid(config: SimVehicleConfig, seed: int = 0, run_dir: Path | None = None,
+              output: Path | None = None, excitation: ExcitationParams | None = None,
+              fit_segments=FIT_FLIGHT, validation_segments=VALIDATION_FLIGHT) -> SysidReport:
+    """Flies the fit and validation flights, identifies, writes the YAML and the Fig. 6 plot."""
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("sysid", seed)
+    base = excitation or ExcitationParams()
+    fit_params = dc.replace(base, seed=base.seed, segments=list(fit_segments))
+    validation_params = dc.replace(base, seed=base.seed + 1, segments=list(validation_segments))
+    fit_run = fly_excitation(config, fit_params, seed, run_dir / "fit")
+    validation_run = fly_excitation(config, validation_params, seed + 1, run_dir / "validation")
+    model = pilot_model(config)
+    fit, start = {}, fit_params.takeoff_time
+    for segment in fit_params.segments:
+        fit[segment.axes] = axis_data(fit_run, start, start + segment.duration, model.mass,
+                                      model.curve)
+        start += segment.duration
+    validation = axis_data(validation_run, validation_params.takeoff_time,
+                           validation_params.duration, model.mass, model.curve)
+    report = identify(fit, validation, model.mass, model.curve)
+    plot_validation(report, run_dir / "sysid_validation.png")
+    if output is not None:
+        Path(output).write_text(yaml_dump_typed(report.params))
+    return report
+
+
+def plot_validation(report: SysidReport, path: Path, title: str = "validation set") -> Path:
+    """Measured vs model response per signal, like L Fig. 6."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    measured = measured_signals(report.validation) if report.validation.velocity_N is not None \
+        else {"pitch": report.validation.pitch, "roll": report.validation.roll}
+    names = [k for k in SIGNALS if k in report.simulated]
+    t = np.arange(len(report.validation.pitch)) * report.validation.dt
+    fig, axes = plt.subplots(len(names), 1, figsize=(9, 2 * len(names)), sharex=True)
+    axes = np.atleast_1d(axes)
+    units = {"pitch": "deg", "roll": "deg", "vx": "m/s", "vy": "m/s", "vz": "m/s"}
+    for ax, name in zip(axes, names):
+        scale = np.degrees(1.0) if units[name] == "deg" else 1.0
+        ax.plot(t, scale * measured[name], label="measured")
+        ax.plot(t, scale * report.simulated[name], "--", label="model")
+        ax.set_ylabel(f"{name} [{units[name]}]")
+        ax.set_title(f"VAF {100 * report.vaf[name]:.1f} %", fontsize=8, loc="right")
+    axes[0].legend(loc="upper left")
+    axes[0].set_title(title, fontsize=9, loc="left")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def effective_damping(config: SimVehicleConfig, data: AxisData) -> np.ndarray:
+    """The plant's drag (linear + quadratic, per body axis) as the best linear damping [1/s] over
+    the velocities of `data`: c = (c1 E[v^2] + c2 E[|v|^3]) / (m E[v^2])."""
+    params = load_hexacopter_params(config.vehicle)
+    v = data.velocity_N
+    c1, c2 = np.asarray(params.drag_linear), np.asarray(params.drag_quadratic)
+    mass = pilot_model(config).mass
+    return (c1 * np.mean(v**2, axis=0) + c2 * np.mean(np.abs(v)**3, axis=0)) \
+        / (mass * np.mean(v**2, axis=0))
