@@ -21,15 +21,18 @@ def make_meshcat(live: bool, record: str | Path | None) -> Meshcat | None:
 
 def simulate(diagram, duration: float, seed: int, meshcat: Meshcat | None = None,
              record: str | Path | None = None, realtime_rate: float = 0.0,
-             stop_when=None) -> Simulator:
-    """Seeds every random source from `seed`, runs to `duration` (or until `stop_when(context)`
-    is true) and writes the replay if asked."""
+             stop_when=None, prepare=None) -> Simulator:
+    """Seeds every random source from `seed`, lets `prepare(context)` change the seeded context
+    (e.g. a body's mass), runs to `duration` (or until `stop_when(context)` is true) and writes
+    the replay if asked."""
     simulator = Simulator(diagram)
     if stop_when is not None:
         simulator.set_monitor(lambda context: EventStatus.ReachedTermination(
             diagram, "done") if stop_when(context) else EventStatus.Succeeded())
     context = simulator.get_mutable_context()
     diagram.SetRandomContext(context, RandomGenerator(seed))
+    if prepare is not None:
+        prepare(context)
     simulator.set_target_realtime_rate(realtime_rate)
     if meshcat is not None and record is not None:
         start_recording(meshcat)
