@@ -1,0 +1,133 @@
+"""The real-time runner: advances a diagram against the wall clock (Drake `Simulator` with a target
+real-time rate of 1), reports overruns, and stops cleanly on Ctrl-C or SIGTERM, always finishing
+with the vehicle's final safe command (disarm on the ground, failsafe descent in the air).
+"""
+import dataclasses as dc
+import logging
+import math
+import signal
+import threading
+import time
+from typing import Callable
+
+from pydrake.common import RandomGenerator
+from pydrake.systems.analysis import Simulator
+
+LOG = logging.getLogger("alight.hw")
+
+
+class WallClock:
+    """Onboard time: seconds of `time.monotonic()` since `restart()`. The runner restarts it when
+    the simulation starts, so that context time and this clock agree while the run keeps up."""
+
+    def __init__(self):
+        self.epoch = time.monotonic()
+
+    def restart(self) -> None:
+        self.epoch = time.monotonic()
+
+    def now(self) -> float:
+        return time.monotonic() - self.epoch
+
+    def from_monotonic(self, t_monotonic: float) -> float:
+        return t_monotonic - self.epoch
+
+
+@dc.dataclass
+class RealtimeReport:
+    sim_time: float          # s of diagram time advanced
+    wall_time: float         # s
+    ticks: int
+    overruns: int            # ticks that ended more than `overrun_tolerance` behind the wall clock
+    max_lag: float           # s, the largest delay behind the wall clock at the end of a tick
+    interrupted: bool        # stopped by Ctrl-C / SIGTERM
+    safe_stop: str           # what the final safe command did
+    error: str = ""          # an exception that stopped the run, if any
+
+    @property
+    def realtime_rate(self) -> float:
+        return self.sim_time / self.wall_time if self.wall_time > 0 else 0.0
+
+    def lines(self) -> list[str]:
+        return [f"ran {self.sim_time:.2f} s in {self.wall_time:.2f} s wall (rate "
+                f"{self.realtime_rate:.3f}), {self.overruns} overruns of {self.ticks} ticks, "
+                f"max lag {1e3 * self.max_lag:.1f} ms" + (", interrupted" if self.interrupted
+                                                          else ""),
+                f"final safe command: {self.safe_stop}"] + ([f"error: {self.error}"]
+                                                             if self.error else [])
+
+
+class _Terminate(Exception):
+    """SIGTERM, turned into an exception in the main thread so the safe stop runs."""
+
+
+def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 0,
+                 safe_stop: Callable[[], str] | None = None, tick: float = 0.01,
+                 overrun_tolerance: float = 0.02, simulator: Simulator | None = None
+                 ) -> tuple[Simulator, RealtimeReport]:
+    """Runs `diagram` in real time until `duration` (None: until Ctrl-C / SIGTERM).
+
+    Each `tick` of diagram time is one `AdvanceTo`; a tick that ends more than
+    `overrun_tolerance` behind the wall clock is an overrun (logged, counted). Whatever ends the
+    run (the duration, Ctrl-C, SIGTERM, an exception), `safe_stop()` runs last and its answer is
+    reported; an exception is re-raised after it."""
+    simulator = simulator or Simulator(diagram)
+    context = simulator.get_mutable_context()
+    diagram.SetRandomContext(context, RandomGenerator(seed))
+    simulator.set_target_realtime_rate(1.0)
+    previous = _install_sigterm()
+    ticks = overruns = 0
+    max_lag = 0.0
+    interrupted = False
+    error = None
+    clock.restart()
+    wall_start = time.monotonic()
+    try:
+        simulator.Initialize()
+        end = math.inf if duration is None else duration
+        t = context.get_time()
+        while t < end:
+            t = min(t + tick, end)
+            simulator.AdvanceTo(t)
+            ticks += 1
+            lag = clock.now() - t
+            max_lag = max(max_lag, lag)
+            if lag > overrun_tolerance:
+                overruns += 1
+                if overruns <= 5 or overruns % 100 == 0:
+                    LOG.warning("real-time overrun %d: %.1f ms behind the wall clock at t = "
+                                "%.2f s", overruns, 1e3 * lag, t)
+    except (KeyboardInterrupt, _Terminate):
+        interrupted = True
+    except Exception as e:
+        error = e
+    finally:
+        _restore_sigterm(previous)
+        wall = time.monotonic() - wall_start
+        stop_answer = "none (no vehicle hook)"
+        if safe_stop is not None:
+            try:
+                stop_answer = safe_stop()
+            except Exception as e:  # the report must still come back
+                stop_answer = f"FAILED: {e}"
+                LOG.error("final safe command failed: %s", e)
+    report = RealtimeReport(context.get_time(), wall, ticks, overruns, max_lag, interrupted,
+                            stop_answer, "" if error is None else repr(error))
+    if error is not None:
+        LOG.error("real-time run stopped by an error; %s", "; ".join(report.lines()))
+        raise error
+    return simulator, report
+
+
+def _install_sigterm():
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def _raise(signum, frame):
+        raise _Terminate()
+    return signal.signal(signal.SIGTERM, _raise)
+
+
+def _restore_sigterm(previous) -> None:
+    if previous is not None:
+        signal.signal(signal.SIGTERM, previous)

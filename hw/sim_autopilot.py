@@ -1,0 +1,435 @@
+"""The simulated autopilot (`alight sim-autopilot`): the simulated vehicle (plant, flight-controller
+emulation, sensors) run in real time behind a PX4-flavoured MAVLink endpoint, so that the
+companion side (`alight hil`, or any MAVLink client such as MAVSDK) flies it as a real Pixhawk.
+
+It speaks: HEARTBEAT (PX4 autopilot, hexarotor, PX4 custom modes), HIGHRES_IMU / SCALED_IMU (each
+IMU sample once, stamped with the simulation's clock), ATTITUDE_QUATERNION, ATTITUDE,
+EXTENDED_SYS_STATE, SYS_STATUS, AUTOPILOT_VERSION, TIMESYNC answers, COMMAND_ACK and STATUSTEXT;
+it obeys SET_ATTITUDE_TARGET (attitude+thrust and rates+thrust), MAV_CMD_COMPONENT_ARM_DISARM,
+MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_LAND, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE and
+MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py. Camera
+frames go to the onboard side over the local frame channel (hw/frame_channel.py).
+"""
+import collections
+import dataclasses as dc
+import json
+import math
+import queue
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.common.value import AbstractValue
+from pydrake.math import RollPitchYaw, RotationMatrix
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pymavlink.dialects.v20 import common as mavlink
+
+from alight.hw.autopilot_rules import ACCEPTED, UNSUPPORTED, Answer, AutopilotRules
+from alight.hw.connection import open_connection
+from alight.hw.endpoint import LOG, MavlinkEndpoint, addressed_to
+from alight.hw.frame_channel import FramePublisher
+from alight.hw.frames import b_to_frd, q_wb_to_nf
+from alight.hw.link import MILLI_G
+from alight.models import model_path
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, ActiveMode, CameraFrame,
+                                     ImuSamples)
+from alight.systems.params import bounded, load_params
+
+# Telemetry streams and their default rates [Hz] (PX4's "onboard" MAVLink mode, roughly).
+STREAMS = {
+    "HIGHRES_IMU": 50.0, "SCALED_IMU": 0.0, "ATTITUDE_QUATERNION": 50.0, "ATTITUDE": 50.0,
+    "EXTENDED_SYS_STATE": 5.0, "SYS_STATUS": 1.0,
+}
+_STREAM_IDS = {mavlink.mavlink_map[i].msgname: i for i in mavlink.mavlink_map
+               if mavlink.mavlink_map[i].msgname in STREAMS}
+_ONE_SHOT = {"AUTOPILOT_VERSION", "ATTITUDE_QUATERNION", "ATTITUDE", "EXTENDED_SYS_STATE",
+             "SYS_STATUS"}
+_CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+                 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
+
+
+@dc.dataclass
+class SimAutopilotParams:
+    """models/sim_autopilot.yaml."""
+    system_id: int = bounded(1, 1, 255)
+    component_id: int = bounded(1, 1, 255)        # MAV_COMP_ID_AUTOPILOT1
+    period: float = bounded(0.001, 0.0005, 0.05, "s")  # bridge tick: link <-> simulation
+    heartbeat_period: float = bounded(1.0, 0.1, 10.0, "s")
+    highres_imu_rate: float = bounded(STREAMS["HIGHRES_IMU"], 0.0, 4000.0, "Hz")  # 0: off
+    scaled_imu_rate: float = bounded(STREAMS["SCALED_IMU"], 0.0, 4000.0, "Hz")
+    attitude_quaternion_rate: float = bounded(STREAMS["ATTITUDE_QUATERNION"], 0.0, 1000.0, "Hz")
+    attitude_rate: float = bounded(STREAMS["ATTITUDE"], 0.0, 1000.0, "Hz")
+    extended_sys_state_rate: float = bounded(STREAMS["EXTENDED_SYS_STATE"], 0.0, 100.0, "Hz")
+    sys_status_rate: float = bounded(STREAMS["SYS_STATUS"], 0.0, 100.0, "Hz")
+
+    def default_rates(self) -> dict[str, float]:
+        return {name: getattr(self, f"{name.lower()}_rate") for name in STREAMS}
+
+
+def load_sim_autopilot_params(filename: str = "sim_autopilot.yaml") -> SimAutopilotParams:
+    return load_params(SimAutopilotParams, model_path(filename))
+
+
+class SimClock:
+    """The autopilot's clock (the simulation's time) as seen from other threads: the time of the
+    last bridge tick plus the wall time since (the simulation runs at real-time rate 1)."""
+
+    def __init__(self):
+        self._t, self._wall = 0.0, time.monotonic()
+        self._lock = threading.Lock()
+
+    def tick(self, t: float) -> None:
+        with self._lock:
+            self._t, self._wall = t, time.monotonic()
+
+    def now(self) -> float:
+        with self._lock:
+            return self._t + (time.monotonic() - self._wall)
+
+
+@dc.dataclass
+class LinkStatistics:
+    """What the autopilot measured of its peer: setpoint arrival times and, when the peer echoes
+    an IMU sample's gyro back as its body-rate setpoint (bench/mavlink_loop.py), the round trip
+    from that IMU message leaving to the command computed from it arriving."""
+    setpoint_arrivals: collections.deque = dc.field(
+        default_factory=lambda: collections.deque(maxlen=200000))
+    round_trips: list = dc.field(default_factory=list)
+    _gyro_sent: collections.OrderedDict = dc.field(default_factory=collections.OrderedDict)
+
+    def imu_sent(self, gyro_frd, wall: float) -> None:
+        self._gyro_sent[tuple(np.float32(gyro_frd))] = wall
+        while len(self._gyro_sent) > 4000:
+            self._gyro_sent.popitem(last=False)
+
+    def setpoint_arrived(self, message, wall: float) -> None:
+        self.setpoint_arrivals.append(wall)
+        if message.type_mask & mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE:
+            key = tuple(np.float32([message.body_roll_rate, message.body_pitch_rate,
+                                    message.body_yaw_rate]))
+            sent = self._gyro_sent.pop(key, None)
+            if sent is not None:
+                self.round_trips.append(wall - sent)
+
+    def summary(self) -> dict:
+        arrivals = np.array(self.setpoint_arrivals)
+        intervals = np.diff(arrivals)
+        summary = {"setpoints": int(len(arrivals))}
+        if len(intervals):
+            summary.update(setpoint_rate=float(1.0 / np.mean(intervals)),
+                           interval_mean=float(np.mean(intervals)),
+                           interval_std=float(np.std(intervals)),
+                           interval_p99=float(np.percentile(intervals, 99)),
+                           interval_max=float(np.max(intervals)))
+        if self.round_trips:
+            trips = np.array(self.round_trips)
+            summary.update(round_trips=int(len(trips)), round_trip_median=float(np.median(trips)),
+                           round_trip_p99=float(np.percentile(trips, 99)),
+                           round_trip_max=float(np.max(trips)))
+        return summary
+
+
+class AutopilotEndpoint(MavlinkEndpoint):
+    """The autopilot's end of the link: takes what is addressed to it, answers TIMESYNC at once
+    with the simulation's clock, and queues the rest for the bridge's next tick."""
+
+    def __init__(self, transport, params: SimAutopilotParams, clock: SimClock, datagrams: bool):
+        super().__init__(transport, params.system_id, params.component_id, datagrams)
+        self.clock = clock
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.statistics = LinkStatistics()
+        self.peer_heartbeat = -math.inf
+
+    @classmethod
+    def open(cls, url: str, params: SimAutopilotParams, clock: SimClock) -> "AutopilotEndpoint":
+        transport = open_connection(url, "listen")
+        return cls(transport, params, clock,
+                   datagrams=url.split(":", 1)[0] in ("udp", "udpin", "udpout")).start()
+
+    def clock_ns(self) -> int:
+        return int(self.clock.now() * 1e9)
+
+    def _accepts(self, message) -> bool:
+        header = message.get_header()
+        return (header.srcSystem, header.srcComponent) != (self.system_id, self.component_id) \
+            and addressed_to(message, self.system_id, self.component_id)
+
+    def _handle(self, message, now: float) -> bool:
+        kind = message.get_type()
+        if kind == "HEARTBEAT":
+            self.peer_heartbeat = now
+        elif kind == "SET_ATTITUDE_TARGET":
+            self.statistics.setpoint_arrived(message, now)
+            self.inbox.put(message)
+        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
+            self.inbox.put(message)
+        return True
+
+    def count_rejected(self) -> None:
+        with self._counter_lock:
+            self.counters.rejected += 1
+
+
+class AutopilotBridge(LeafSystem):
+    """Input  `imu`, `fc_attitude`, `fc_status`, `rgbd`, `down_image` from the simulated vehicle
+    Output `fc_command` FC_COMMAND to the simulated vehicle
+    Every `period`: handles what the link received (rules of hw/autopilot_rules.py), updates
+    `fc_command`, and sends the telemetry that is due (each new IMU sample once)."""
+
+    def __init__(self, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
+                 rules: AutopilotRules, command_period: float, imu_period: float,
+                 frames: FramePublisher | None = None):
+        super().__init__()
+        self._endpoint, self._params, self._rules, self._frames = endpoint, params, rules, frames
+        self._command_period, self._imu_period = command_period, imu_period
+        self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
+        self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
+        self._status = self.DeclareVectorInputPort("fc_status", FC_STATUS.size)
+        self._cameras = {name: self.DeclareAbstractInputPort(
+            name, AbstractValue.Make(CameraFrame())) for name in ("rgbd", "down_image")}
+        initial = FC_COMMAND.pack(stamp=0.0, mode=1, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
+                                  thrust=0.0, arm=0.0)
+        self._command = self.DeclareDiscreteState(initial)
+        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareStateOutputPort("fc_command", self._command)
+        self._intervals = {name: (1.0 / rate if rate > 0 else None)
+                           for name, rate in params.default_rates().items()}
+        self._next_send = {name: 0.0 for name in STREAMS}
+        self._one_shots: set[str] = set()
+        self._next_heartbeat = self._next_command = self._next_imu = 0.0
+        self._next_frames = 0.0
+        self._last_imu_seq = -1
+        self._last_imu_sent = {"HIGHRES_IMU": -math.inf, "SCALED_IMU": -math.inf}
+        self._frame_stamps = {name: -math.inf for name in self._cameras}
+
+    def _update(self, context, discrete_state):
+        """Cheap when nothing is due: this runs every `period` (1 ms) in real time."""
+        now = context.get_time()
+        self._endpoint.clock.tick(now)
+        received = not self._endpoint.inbox.empty()
+        if received or now >= self._next_command:  # the flight controller's rate, or at once
+            status = self._status.Eval(context)
+            if received:
+                self._handle_inbox(now, status)
+            discrete_state.set_value(self._command, self._rules.fc_command(
+                now, status, self._attitude.Eval(context)))
+            self._next_command = now + self._command_period - 1e-9
+        self._send_telemetry(context, now)
+        if self._frames is not None and now >= self._next_frames:
+            self._publish_frames(context)
+            self._next_frames = now + 0.005
+
+    # --- link -> simulation ----------------------------------------------------------------
+    def _handle_inbox(self, now, status):
+        endpoint, mav = self._endpoint, self._endpoint.mav
+        while True:
+            try:
+                message = endpoint.inbox.get_nowait()
+            except queue.Empty:
+                return
+            if message.get_type() == "SET_ATTITUDE_TARGET":
+                if not self._rules.setpoint_received(message, now):
+                    endpoint.count_rejected()
+                continue
+            params = [message.param1, message.param2, message.param3, message.param4]
+            if message.get_type() == "COMMAND_LONG":
+                params += [message.param5, message.param6, message.param7]
+            answer = self._commandAnswer(message.command, params, now, status)
+            header = message.get_header()
+            if answer.text:
+                severity = mavlink.MAV_SEVERITY_INFO if answer.result == ACCEPTED \
+                    else mavlink.MAV_SEVERITY_CRITICAL
+                endpoint.send(mav.statustext_encode(severity, answer.text.encode()[:50]))
+            endpoint.send(mav.command_ack_encode(message.command, answer.result, 0, 0,
+                                                 header.srcSystem, header.srcComponent))
+
+    def _commandAnswer(self, command, params, now, status):
+        if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return self._set_interval(params)
+        if command in (mavlink.MAV_CMD_REQUEST_MESSAGE,
+                       mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
+            message_id = 148 if command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES \
+                else int(params[0]) if math.isfinite(params[0]) else -1
+            entry = mavlink.mavlink_map.get(message_id)
+            if entry is None or entry.msgname not in _ONE_SHOT:
+                return Answer(UNSUPPORTED)
+            self._one_shots.add(entry.msgname)
+            return Answer(ACCEPTED)
+        return self._rules.command(command, params, now, status)
+
+    def _set_interval(self, params):
+        message_id, interval_us = params[0], params[1]
+        entry = mavlink.mavlink_map.get(int(message_id)) if math.isfinite(message_id) else None
+        if entry is None or entry.msgname not in STREAMS or not math.isfinite(interval_us):
+            return Answer(UNSUPPORTED)
+        name = entry.msgname
+        if interval_us == 0:
+            rate = self._params.default_rates()[name]
+            self._intervals[name] = 1.0 / rate if rate > 0 else None
+        elif interval_us < 0:
+            self._intervals[name] = None
+        else:
+            self._intervals[name] = interval_us * 1e-6
+        return Answer(ACCEPTED)
+
+    # --- simulation -> link ----------------------------------------------------------------
+    def _send_telemetry(self, context, now):
+        endpoint, mav = self._endpoint, self._endpoint.mav
+        if now >= self._next_heartbeat:
+            base_mode, custom_mode, system_status = self._rules.heartbeat(
+                self._status.Eval(context))
+            endpoint.send(mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
+                                               mavlink.MAV_AUTOPILOT_PX4, base_mode, custom_mode,
+                                               system_status))
+            self._next_heartbeat = now + self._params.heartbeat_period
+        if now >= self._next_imu:  # a new sample is due (the IMU updates every imu_period)
+            new = self._imu.Eval(context).newer_than(self._last_imu_seq)
+            if len(new):
+                self._send_imu(new)
+                self._next_imu = float(new.t[-1]) + self._imu_period
+        due = [name for name in ("ATTITUDE_QUATERNION", "ATTITUDE", "EXTENDED_SYS_STATE",
+                                 "SYS_STATUS") if self._due(name, now)]
+        if due:
+            attitude = self._attitude.Eval(context)
+            status = self._status.Eval(context)
+            q_NF = q_wb_to_nf(FC_ATTITUDE.get(attitude, "q_WB"))
+            w_F = b_to_frd(FC_ATTITUDE.get(attitude, "w_B"))
+            time_ms = int(FC_ATTITUDE.get(attitude, "stamp") * 1e3)
+        for name in due:
+            if name == "ATTITUDE_QUATERNION":
+                message = mav.attitude_quaternion_encode(time_ms, *q_NF, *w_F)
+            elif name == "ATTITUDE":
+                rpy = RollPitchYaw(RotationMatrix(Quaternion(q_NF / np.linalg.norm(q_NF))))
+                message = mav.attitude_encode(time_ms, *rpy.vector(), *w_F)
+            elif name == "EXTENDED_SYS_STATE":
+                message = mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED,
+                                                        _landed_state(status))
+            else:
+                sensors = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+                           | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+                           | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+                           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)
+                message = mav.sys_status_encode(sensors, sensors, sensors, 0, 65535, -1, -1,
+                                                0, 0, 0, 0, 0, 0)
+            endpoint.send(message)
+        if "AUTOPILOT_VERSION" in self._one_shots:
+            endpoint.send(mav.autopilot_version_encode(_CAPABILITIES, 0, 0, 0, 0, [0] * 8,
+                                                       [0] * 8, [0] * 8, 0, 0, 0))
+        self._one_shots.clear()
+
+    def _due(self, name: str, now: float) -> bool:
+        interval = self._intervals[name]
+        if name in self._one_shots:
+            return True
+        if interval is None or now < self._next_send[name]:
+            return False
+        self._next_send[name] = max(self._next_send[name] + interval, now)
+        return True
+
+    def _send_imu(self, new: ImuSamples):
+        if not len(new):
+            return
+        self._last_imu_seq = int(new.seq[-1])
+        endpoint, mav = self._endpoint, self._endpoint.mav
+        for t, accel, gyro in zip(new.t, new.accel, new.gyro):
+            accel_F, gyro_F = b_to_frd(accel), b_to_frd(gyro)
+            for name in ("HIGHRES_IMU", "SCALED_IMU"):
+                interval = self._intervals[name]
+                if interval is None or t - self._last_imu_sent[name] < interval - 1e-4:
+                    continue
+                self._last_imu_sent[name] = t
+                if name == "HIGHRES_IMU":
+                    endpoint.statistics.imu_sent(gyro_F, time.monotonic())
+                    endpoint.send(mav.highres_imu_encode(
+                        int(round(t * 1e6)), *accel_F, *gyro_F, 0, 0, 0, 0, 0, 0, 25.0,
+                        0b111111))
+                else:
+                    endpoint.send(mav.scaled_imu_encode(
+                        int(round(t * 1e3)), *_int16(accel_F / MILLI_G), *_int16(gyro_F * 1e3),
+                        0, 0, 0))
+
+    def _publish_frames(self, context):
+        for name, port in self._cameras.items():
+            frame = port.Eval(context)
+            if frame.valid and frame.stamp > self._frame_stamps[name]:
+                self._frame_stamps[name] = frame.stamp
+                self._frames.publish(name, frame)
+
+
+def _int16(values) -> list[int]:
+    return [int(v) for v in np.clip(np.round(values), -32768, 32767)]
+
+
+def _landed_state(status) -> int:
+    if FC_STATUS.get(status, "mode") == ActiveMode.FAILSAFE_DESCENT:
+        return mavlink.MAV_LANDED_STATE_LANDING
+    if FC_STATUS.get(status, "landed") > 0.5:
+        return mavlink.MAV_LANDED_STATE_ON_GROUND
+    return mavlink.MAV_LANDED_STATE_IN_AIR
+
+
+def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
+                       frames: FramePublisher | None = None, meshcat=None):
+    """The simulated vehicle with the autopilot bridge closing its `fc_command` loop; returns
+    (diagram, run loggers)."""
+    from alight.diagrams.run_log import add_run_logging
+    from alight.diagrams.sim_vehicle import make_sim_vehicle
+    builder = DiagramBuilder()
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
+    commander = vehicle_config.flight_controller.commander
+    rules = AutopilotRules(commander.stale_timeout, commander.max_arm_thrust)
+    bridge = builder.AddNamedSystem("autopilot_bridge", AutopilotBridge(
+        endpoint, params, rules, vehicle_config.flight_controller.period,
+        vehicle_config.imu.period, frames))
+    for name in ("imu", "fc_attitude", "fc_status", "rgbd", "down_image"):
+        builder.Connect(vehicle.GetOutputPort(name), bridge.GetInputPort(name))
+    builder.Connect(bridge.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    loggers = add_run_logging(builder, vehicle, bridge.GetOutputPort("fc_command"))
+    diagram = builder.Build()
+    diagram.set_name("sim_autopilot")
+    return diagram, loggers
+
+
+def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
+                      duration: float | None = None, seed: int = 0, run_dir=None,
+                      frame_address: str | None = None, stats_file=None, meshcat=None,
+                      record=None, ready=None):
+    """Serves the simulated vehicle on `listen` in real time until `duration` or Ctrl-C/SIGTERM;
+    writes the run folder (with ground truth) and, if asked, the link statistics (JSON)."""
+    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.run_log import write_run_folder
+    from alight.diagrams.visualization import start_recording, write_recording
+    from alight.hw.realtime import WallClock, run_realtime
+    clock = SimClock()
+    endpoint = AutopilotEndpoint.open(listen, params, clock)
+    frames = FramePublisher(frame_address) if frame_address else None
+    try:
+        diagram, loggers = make_sim_autopilot(vehicle_config, endpoint, params, frames, meshcat)
+        if meshcat is not None and record is not None:
+            start_recording(meshcat)
+        if ready is not None:
+            ready()
+        simulator, report = run_realtime(diagram, duration, WallClock(), seed=seed,
+                                         safe_stop=lambda: "simulated vehicle: stops with the "
+                                                           "process")
+        if meshcat is not None and record is not None:
+            write_recording(meshcat, record)
+    finally:
+        endpoint.close()
+        if frames is not None:
+            frames.close()
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("sim-autopilot", seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {
+        "command": "sim-autopilot", "seed": seed, "listen": listen,
+        "duration": simulator.get_context().get_time(), "config": vehicle_config,
+        "autopilot": params, "realtime": dc.asdict(report)})
+    statistics = {"realtime": dc.asdict(report), "link": dc.asdict(endpoint.counters_snapshot()),
+                  **endpoint.statistics.summary()}
+    if stats_file is not None:
+        Path(stats_file).write_text(json.dumps(statistics, indent=2))
+    LOG.info("sim-autopilot: %s", report.lines()[0])
+    return report, run_dir, statistics

@@ -1,0 +1,111 @@
+"""A scripted PX4 stand-in for the MAVLink tests: the real autopilot endpoint (hw/sim_autopilot.py)
+with hand-driven telemetry and scripted command answers instead of a simulated vehicle."""
+import socket
+import threading
+import time
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from alight.hw import px4
+from alight.hw.sim_autopilot import AutopilotEndpoint, SimAutopilotParams, SimClock
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class FakeAutopilot:
+    """Answers COMMAND_LONG from `answers[command]` (a list used in order: a MAV_RESULT, or None
+    for no answer at all; then ACCEPTED), applies accepted arm/mode/land commands to its own
+    state, sends HEARTBEAT (10 Hz) and EXTENDED_SYS_STATE while `alive`, and records every
+    SET_ATTITUDE_TARGET and COMMAND_LONG with its reception time."""
+
+    def __init__(self, port: int | None = None):
+        self.port = port or free_udp_port()
+        self.clock = SimClock()
+        self.start = time.monotonic()
+        self.endpoint = AutopilotEndpoint.open(f"udpin:127.0.0.1:{self.port}",
+                                               SimAutopilotParams(), self.clock)
+        self.mav = self.endpoint.mav
+        self.answers: dict[int, list] = {}
+        self.texts: dict[int, str] = {}
+        self.setpoints: list[tuple[float, object]] = []
+        self.commands: list[tuple[float, object]] = []
+        self.armed = False
+        self.custom_mode = px4.HOLD
+        self.landed_state = mavlink.MAV_LANDED_STATE_ON_GROUND
+        self.alive = True
+        self.last_sent = time.monotonic()
+        self._running = True
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return f"udp:127.0.0.1:{self.port}"
+
+    def fc_time(self) -> float:
+        return time.monotonic() - self.start
+
+    def send(self, message) -> None:
+        if self.alive:
+            self.endpoint.send(message)
+            self.last_sent = time.monotonic()
+
+    def _loop(self):
+        next_heartbeat = 0.0
+        while self._running:
+            now = time.monotonic()
+            self.clock.tick(self.fc_time())
+            while not self.endpoint.inbox.empty():
+                self._handle(self.endpoint.inbox.get())
+            if now >= next_heartbeat:
+                base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED \
+                    | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+                self.send(self.mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
+                                                    mavlink.MAV_AUTOPILOT_PX4, base,
+                                                    self.custom_mode, mavlink.MAV_STATE_STANDBY))
+                self.send(self.mav.extended_sys_state_encode(0, self.landed_state))
+                next_heartbeat = now + 0.1
+            time.sleep(0.001)
+
+    def _handle(self, message):
+        now = time.monotonic()
+        if message.get_type() == "SET_ATTITUDE_TARGET":
+            self.setpoints.append((now, message))
+            return
+        self.commands.append((now, message))
+        script = self.answers.get(message.command, [])
+        result = script.pop(0) if script else mavlink.MAV_RESULT_ACCEPTED
+        if result is None:
+            return  # lost
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            if message.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+                self.armed = message.param1 == 1.0
+            elif message.command == mavlink.MAV_CMD_DO_SET_MODE:
+                self.custom_mode = px4.custom_mode(int(message.param2), int(message.param3))
+            elif message.command == mavlink.MAV_CMD_NAV_LAND:
+                self.custom_mode = px4.LAND
+        elif message.command in self.texts:
+            self.send(self.mav.statustext_encode(mavlink.MAV_SEVERITY_CRITICAL,
+                                                 self.texts[message.command].encode()))
+        header = message.get_header()
+        self.send(self.mav.command_ack_encode(message.command, result, 0, 0, header.srcSystem,
+                                              header.srcComponent))
+
+    def silence(self):
+        """The autopilot goes away: nothing more is sent, not even TIMESYNC answers."""
+        self.alive = False
+        self.endpoint.close()
+        self.silent_since = time.monotonic()
+
+    def commands_named(self, command: int) -> list:
+        return [m for _, m in self.commands if m.command == command]
+
+    def close(self):
+        self._running = False
+        self._thread.join(timeout=2)
+        if self.alive:
+            self.endpoint.close()
