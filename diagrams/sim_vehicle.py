@@ -5,7 +5,8 @@ import dataclasses as dc
 import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import AddContactMaterial, Box, HalfSpace, Meshcat, ProximityProperties, Sphere
+from pydrake.geometry import (AddContactMaterial, Box, GeometryInstance, HalfSpace,
+                              IllustrationProperties, Meshcat, ProximityProperties, Rgba, Sphere)
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction,
                                      ExternallyAppliedSpatialForceMultiplexer,
@@ -15,6 +16,7 @@ from pydrake.systems.primitives import ConstantValueSource, RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from alight.diagrams.flight_controller import make_flight_controller
+from alight.diagrams.target import add_target_scene, add_target_systems, perceived_ground
 from alight.models import model_path
 from alight.systems.autopilot.config import FlightControllerParams
 from alight.systems.boundary import CameraFrame
@@ -26,7 +28,9 @@ from alight.systems.plant.motors import EscThrustMap, first_order_motors
 from alight.systems.plant.wind import Wind, WindParams
 from alight.systems.sensors.fc_estimate import FcEstimate, FcEstimateParams
 from alight.systems.sensors.ground_truth import GroundTruth
+from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.sensors.imu import Imu, ImuParams
+from alight.systems.target.vehicle import TargetParams
 
 
 @dc.dataclass
@@ -40,32 +44,46 @@ class SimVehicleConfig:
     imu: ImuParams = dc.field(default_factory=ImuParams)
     fc_estimate: FcEstimateParams = dc.field(default_factory=FcEstimateParams)
     wind: WindParams = dc.field(default_factory=WindParams)
+    down_camera: DownCameraParams = dc.field(default_factory=DownCameraParams)  # source none: no camera
+    target: TargetParams = dc.field(default_factory=TargetParams)  # profile none: no target
 
 
 def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleConfig:
     return load_params(SimVehicleConfig, model_path(filename))
 
 
-def _add_ground(plant, friction: float):
+def _add_ground(plant, friction: float, perceived: bool = True):
+    """The ground half-space; `perceived=False` hides it from cameras (a textured ground is seen)."""
     properties = ProximityProperties()
     AddContactMaterial(friction=CoulombFriction(friction, friction), properties=properties)
     plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
                                     properties)
-    plant.RegisterVisualGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
-                                 np.array([0.45, 0.55, 0.4, 1.0]))
+    colour = np.array([0.45, 0.55, 0.4, 1.0])
+    if perceived:
+        plant.RegisterVisualGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
+                                     colour)
+        return
+    instance = GeometryInstance(RigidTransform(), HalfSpace(), "ground")
+    illustration = IllustrationProperties()
+    illustration.AddProperty("phong", "diffuse", Rgba(*colour))
+    instance.set_illustration_properties(illustration)
+    plant.RegisterVisualGeometry(plant.world_body(), instance)
 
 
 def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -> Diagram:
     """The simulated vehicle diagram. Input `fc_command`; outputs `imu`, `fc_attitude`,
-    `fc_status`, `rgbd`, `down_image` (no camera fitted yet: empty CameraFrame) and the
-    simulation-only `ground_truth`. Seed it with `Diagram.SetRandomContext`."""
+    `fc_status`, `rgbd` (no camera fitted yet: empty CameraFrame), `down_image` (the downward
+    camera of `config.down_camera`, empty frames with source none) and the simulation-only
+    `ground_truth` (with the target of `config.target`, if any). Seed it with
+    `Diagram.SetRandomContext`."""
     params = load_hexacopter_params(config.vehicle)
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
         MultibodyPlantConfig(time_step=config.time_step, discrete_contact_approximation="sap"),
         builder)
-    _add_ground(plant, config.ground_friction)
+    _add_ground(plant, config.ground_friction, perceived_ground(config.down_camera))
     instance = add_hexacopter(plant, params)
+    scene = add_target_scene(plant, config.target, config.down_camera)
     plant.Finalize()
     body = plant.GetBodyByName(params.body)
     frame = airframe(plant, params)
@@ -132,7 +150,10 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     builder.Connect(fc.GetOutputPort("motor_command"), esc.GetInputPort("motor_command"))
     builder.Connect(fc.GetOutputPort("armed"), esc.GetInputPort("armed"))
 
-    truth = builder.AddNamedSystem("ground_truth", GroundTruth(n))
+    target_state, down_image = add_target_systems(builder, plant, scene_graph, scene, body)
+    truth = builder.AddNamedSystem("ground_truth", GroundTruth(n, target_state is not None))
+    if target_state is not None:
+        builder.Connect(target_state, truth.GetInputPort("target_state"))
     builder.Connect(body_state, truth.GetInputPort("body_state"))
     builder.Connect(wind.GetOutputPort("wind"), truth.GetInputPort("wind"))
     builder.Connect(fc.GetOutputPort("motor_command"), truth.GetInputPort("motor_command"))
@@ -146,10 +167,10 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
     builder.ExportOutput(estimate.GetOutputPort("fc_attitude"), "fc_attitude")
     builder.ExportOutput(fc.GetOutputPort("fc_status"), "fc_status")
-    for camera in ("rgbd", "down_image"):  # reserved: the camera issues fit these
-        source = builder.AddNamedSystem(f"{camera}_camera", ConstantValueSource(
-            AbstractValue.Make(CameraFrame())))
-        builder.ExportOutput(source.get_output_port(), camera)
+    rgbd = builder.AddNamedSystem("rgbd_camera", ConstantValueSource(  # reserved: VIO issue
+        AbstractValue.Make(CameraFrame())))
+    builder.ExportOutput(rgbd.get_output_port(), "rgbd")
+    builder.ExportOutput(down_image, "down_image")
     builder.ExportOutput(truth.GetOutputPort("ground_truth"), "ground_truth")
     diagram = builder.Build()
     diagram.set_name("sim_vehicle")

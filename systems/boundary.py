@@ -12,9 +12,10 @@ import numpy as np
 class VectorLayout:
     """Named fields of a flat vector: `layout.slice("q_WB")`, `layout.names()` for log columns."""
 
-    def __init__(self, name: str, fields: list[tuple[str, int]]):
+    def __init__(self, name: str, fields: list[tuple[str, int]], defaults: dict | None = None):
         self.name = name
         self.fields = list(fields)
+        self.defaults = dict(defaults or {})  # fields that `pack` may omit (appended fields)
         self._slices = {}
         start = 0
         for field, size in self.fields:
@@ -30,12 +31,12 @@ class VectorLayout:
         return value[0] if value.size == 1 else value
 
     def pack(self, **values) -> np.ndarray:
-        """A vector from every field by name (missing fields are an error)."""
-        missing = {f for f, _ in self.fields} - set(values)
+        """A vector from every field by name (missing fields without a default are an error)."""
+        missing = {f for f, _ in self.fields} - set(values) - set(self.defaults)
         if missing:
             raise ValueError(f"{self.name}: missing fields {sorted(missing)}")
         vector = np.zeros(self.size)
-        for field, value in values.items():
+        for field, value in {**self.defaults, **values}.items():
             vector[self._slices[field]] = value
         return vector
 
@@ -91,10 +92,13 @@ FC_STATUS = VectorLayout("fc_status", [
 
 # Output `ground_truth` (simulation only, never read onboard): p_WB [m]; q_WB (w, x, y, z);
 # v_WB [m/s, in W]; w_WB_B body rates [rad/s, in B]; wind velocity v_WA [m/s, in W];
-# the flight controller's ESC commands in [0, 1]; rotor thrusts [N].
+# the flight controller's ESC commands in [0, 1]; rotor thrusts [N]. The moving target (issue 5):
+# p_WT, q_WT, v_WT of the target frame T (the landing pattern's centre on the platform top, z up)
+# and target_present (1 when the scene has a target; else the target fields are zero/identity).
 GROUND_TRUTH = VectorLayout("ground_truth", [
     ("p_WB", 3), ("q_WB", 4), ("v_WB", 3), ("w_WB_B", 3), ("v_WA", 3), ("motor_command", 6),
-    ("rotor_thrust", 6)])
+    ("rotor_thrust", 6), ("p_WT", 3), ("q_WT", 4), ("v_WT", 3), ("target_present", 1)],
+    defaults={"p_WT": 0.0, "q_WT": [1.0, 0.0, 0.0, 0.0], "v_WT": 0.0, "target_present": 0.0})
 
 
 @dc.dataclass(frozen=True)
@@ -136,15 +140,20 @@ class CameraFrame:
 
     stamp: exposure time [s]; image: HxW (grayscale) or HxWx3 colour; depth: HxW [m] or None;
     calibration: dict with K (3x3), distortion, width, height, X_BC (camera pose in B), or None.
+    A `geometric` camera source (DESIGN.md "Simulation fidelity") sends no image but keypoint
+    observations instead: `keypoints` (N, 2) pixel coordinates in the (distorted) image, with the
+    ids of the observed pattern keypoints in `keypoint_ids` (N,), and the same calibration.
     """
     stamp: float = float("nan")
     image: np.ndarray | None = None
     depth: np.ndarray | None = None
     calibration: dict | None = None
+    keypoints: np.ndarray | None = None
+    keypoint_ids: np.ndarray | None = None
 
     @property
     def valid(self) -> bool:
-        return self.image is not None and np.isfinite(self.stamp)
+        return (self.image is not None or self.keypoints is not None) and np.isfinite(self.stamp)
 
 
 VECTOR_OUTPUTS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS}
@@ -164,6 +173,17 @@ STATE_ESTIMATE = VectorLayout("state_estimate", [
     ("stamp", 1), ("p_EB", 3), ("v_EB", 3), ("a_EB", 3), ("q_EB", 4), ("heading", 1),
     ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
     ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)])
+
+# `target_estimate` (DESIGN.md "The onboard stack"; L(5)-(10), (28)-(35)): the target EKF's estimate
+# predicted to `stamp` [s]: position p_WT [m], orientation q_WT (w, x, y, z) and velocity v_WT
+# [m/s] of the target frame T (landing-pattern centre, z up) in the state estimate's frame E (W of
+# the paper); variances of position [m^2], orientation (tangent space, rad^2) and velocity
+# [(m/s)^2]; the stamp of the last frame whose keypoints were accepted [s] (nan before the first);
+# valid (1 once initialized from a full detection and not lost); the number of keypoints accepted
+# in the last frame; the state estimate's frame counter the estimate is expressed in.
+TARGET_ESTIMATE = VectorLayout("target_estimate", [
+    ("stamp", 1), ("p_WT", 3), ("q_WT", 4), ("v_WT", 3), ("var_p", 3), ("var_rot", 3),
+    ("var_v", 3), ("last_measurement", 1), ("valid", 1), ("keypoints", 1), ("frame_counter", 1)])
 
 # `reference` chi of M(16), produced by trackers for controllers: position, velocity, acceleration,
 # jerk of the desired body position in the estimator frame E [m, m/s, m/s^2, m/s^3]; heading and

@@ -1,0 +1,183 @@
+"""Builds the moving target and the downward camera into a simulation diagram (issue 5):
+`add_target_scene` (before the plant is finalized: the car, its platform, the textured ground) and
+`add_target_systems` (after: the motion profile driving the car, the platform's true state, the
+camera source). `DownCameraRig` renders or observes single frames at chosen poses, without dynamics,
+for the detection tests and the benchmarks.
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.common import RandomDistribution
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera,
+                              GeometryInstance, MakeRenderEngineVtk, Mesh, RenderCameraCore,
+                              RenderEngineVtkParams)
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource, RandomSource
+from pydrake.systems.sensors import CameraInfo, RgbdSensor
+
+from alight.models import model_path
+from alight.systems.boundary import CameraFrame
+from alight.systems.perception.pattern import Pattern, load_pattern_params
+from alight.systems.sensors.down_camera import (DownCameraParams, GeometricDownCamera,
+                                                RenderedDownCamera, render_intrinsics)
+from alight.systems.target.motion import NOISE_SIZE, TargetMotion
+from alight.systems.target.vehicle import (PlatformState, TargetParams, TargetVehicle,
+                                           add_target_vehicle)
+
+RENDERER = "down_camera_vtk"
+
+
+@dc.dataclass
+class TargetScene:
+    """What `add_target_scene` put into the plant."""
+    target: TargetParams
+    camera: DownCameraParams
+    vehicle: TargetVehicle | None  # None when the scene has no target
+    pattern: Pattern
+
+
+def add_target_scene(plant, target: TargetParams, camera: DownCameraParams) -> TargetScene:
+    """Adds the target vehicle (unless `target.profile` is none) and, for a rendered camera, the
+    textured ground the camera sees. Call before `plant.Finalize()`."""
+    vehicle = add_target_vehicle(plant, target) if target.profile != "none" else None
+    if camera.source == "rendered":
+        plant.RegisterVisualGeometry(plant.world_body(), GeometryInstance(
+            RigidTransform(), Mesh(str(model_path("target_ground.obj"))), "ground_texture"))
+    return TargetScene(target, camera, vehicle, Pattern(load_pattern_params(target.pattern)))
+
+
+def perceived_ground(camera: DownCameraParams) -> bool:
+    """Whether the plain ground plane should be seen by cameras (not when the textured ground is)."""
+    return camera.source != "rendered"
+
+
+def add_target_systems(builder: DiagramBuilder, plant, scene_graph, scene: TargetScene,
+                       vehicle_body):
+    """After Finalize: the motion profile driving the target's joints, and the camera source.
+    Returns (`target_state` output port or None, `down_image` output port)."""
+    target_state = None
+    if scene.vehicle is not None:
+        target_state = _add_motion(builder, plant, scene)
+    down_image = _add_camera(builder, plant, scene_graph, scene, vehicle_body)
+    return target_state, down_image
+
+
+def _add_motion(builder, plant, scene: TargetScene):
+    p = scene.target
+    motion = builder.AddNamedSystem("target_motion", TargetMotion(
+        p.profile, p.initial_position, p.initial_heading, p.straight, p.figure_eight,
+        p.field_test))
+    if p.profile == "field_test":
+        noise = builder.AddNamedSystem("target_motion_noise", RandomSource(
+            RandomDistribution.kGaussian, NOISE_SIZE, p.field_test.period))
+        builder.Connect(noise.get_output_port(), motion.GetInputPort("noise"))
+    builder.Connect(motion.GetOutputPort("desired_state"),
+                    plant.get_desired_state_input_port(scene.vehicle.instance))
+    state = builder.AddNamedSystem("target_platform_state", PlatformState(
+        scene.vehicle.platform.index()))
+    builder.Connect(plant.get_body_poses_output_port(), state.GetInputPort("body_poses"))
+    builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                    state.GetInputPort("body_spatial_velocities"))
+    return state.GetOutputPort("target_state")
+
+
+def _add_camera(builder, plant, scene_graph, scene: TargetScene, vehicle_body):
+    params = scene.camera
+    if params.source == "none":
+        source = builder.AddNamedSystem("down_camera", ConstantValueSource(
+            AbstractValue.Make(CameraFrame())))
+        return source.get_output_port()
+    if params.source == "rendered":
+        sensor = add_render_sensor(builder, plant, scene_graph, params, vehicle_body)
+        camera = builder.AddNamedSystem("down_camera", RenderedDownCamera(params))
+        builder.Connect(sensor.color_image_output_port(), camera.GetInputPort("color_image"))
+        seed = builder.AddNamedSystem("down_camera_noise", RandomSource(
+            RandomDistribution.kUniform, 1, params.period))
+        builder.Connect(seed.get_output_port(), camera.GetInputPort("noise_seed"))
+        return camera.GetOutputPort("down_image")
+    if scene.vehicle is None:
+        raise ValueError("the geometric down camera observes the target: set a target profile")
+    camera = builder.AddNamedSystem("down_camera", GeometricDownCamera(
+        params, scene.pattern.p_TK, vehicle_body.index(), scene.vehicle.platform.index()))
+    builder.Connect(plant.get_body_poses_output_port(), camera.GetInputPort("body_poses"))
+    noise = builder.AddNamedSystem("down_camera_noise", RandomSource(
+        RandomDistribution.kGaussian, camera.noise_size(), params.period))
+    builder.Connect(noise.get_output_port(), camera.GetInputPort("noise"))
+    return camera.GetOutputPort("down_image")
+
+
+def add_render_sensor(builder, plant, scene_graph, params: DownCameraParams, body) -> RgbdSensor:
+    """A VTK renderer (headless) and a Drake RgbdSensor with the pinhole that covers the lens,
+    attached to `body` at X_BC."""
+    if not scene_graph.HasRenderer(RENDERER):
+        scene_graph.AddRenderer(RENDERER, MakeRenderEngineVtk(RenderEngineVtkParams(
+            backend=params.renderer_backend)))
+    width, height, f, cx, cy = render_intrinsics(params)
+    core = RenderCameraCore(RENDERER, CameraInfo(width, height, f, f, cx, cy),
+                            ClippingRange(0.05, 200.0), RigidTransform())
+    sensor = builder.AddNamedSystem("down_camera_render", RgbdSensor(
+        plant.GetBodyFrameIdOrThrow(body.index()), params.X_BC(), ColorRenderCamera(core, False),
+        DepthRenderCamera(core, DepthRange(0.05, 60.0))))
+    builder.Connect(scene_graph.get_query_output_port(), sensor.query_object_input_port())
+    return sensor
+
+
+class DownCameraRig:
+    """The target scene and the down camera without dynamics: `render(X_WB, target_pose)` gives the
+    distorted grey image of the camera on a body at X_WB, `observe` the geometric source's
+    noise-free keypoints, `X_CT` the true pattern pose in the camera."""
+
+    def __init__(self, camera: DownCameraParams, target: TargetParams):
+        builder = DiagramBuilder()
+        plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
+        from pydrake.multibody.tree import SpatialInertia
+        self._body = plant.AddRigidBody("camera_carrier", SpatialInertia.SolidSphereWithMass(
+            1.0, 0.1))
+        camera = dc.replace(camera, source="rendered")
+        target = dc.replace(target, profile="straight" if target.profile == "none"
+                            else target.profile)
+        self.scene = add_target_scene(plant, target, camera)
+        from alight.diagrams.sim_vehicle import _add_ground
+        _add_ground(plant, 0.8, perceived=False)
+        plant.Finalize()
+        self._sensor = add_render_sensor(builder, plant, scene_graph, camera, self._body)
+        self.camera = RenderedDownCamera(camera)
+        self.lens = camera.lens()
+        self._geometric = GeometricDownCamera(camera, self.scene.pattern.p_TK, 0, 0)
+        self._plant = plant
+        self._height = target.platform_height
+        self._diagram = builder.Build()
+        self._context = self._diagram.CreateDefaultContext()
+        self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
+        self._X_BC = camera.X_BC()
+        instance = self.scene.vehicle.instance
+        self._joints = [plant.GetJointByName(n, instance) for n in ("x", "y", "heading")]
+
+    def set_poses(self, X_WB: RigidTransform, target_xy_heading=(0.0, 0.0, 0.0)) -> None:
+        self._plant.SetFreeBodyPose(self._plant_context, self._body, X_WB)
+        x, y, heading = target_xy_heading
+        self._joints[0].set_translation(self._plant_context, x)
+        self._joints[1].set_translation(self._plant_context, y)
+        self._joints[2].set_angle(self._plant_context, heading)
+
+    def X_WT(self) -> RigidTransform:
+        return self._plant.EvalBodyPoseInWorld(self._plant_context, self.scene.vehicle.platform)
+
+    def X_CT(self) -> RigidTransform:
+        X_WC = self._plant.EvalBodyPoseInWorld(self._plant_context, self._body) @ self._X_BC
+        return X_WC.inverse() @ self.X_WT()
+
+    def render(self, X_WB: RigidTransform, target_xy_heading=(0.0, 0.0, 0.0),
+               seed: int = 0) -> np.ndarray:
+        self.set_poses(X_WB, target_xy_heading)
+        rgba = self._sensor.color_image_output_port().Eval(
+            self._sensor.GetMyContextFromRoot(self._context)).data
+        return self.camera.distort(rgba, seed)
+
+    def observe(self, X_WB: RigidTransform, target_xy_heading=(0.0, 0.0, 0.0)):
+        """Noise-free distorted keypoint pixels and their visibility (the geometric source)."""
+        self.set_poses(X_WB, target_xy_heading)
+        return self._geometric.observe(self.X_CT().inverse())

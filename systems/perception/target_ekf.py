@@ -1,0 +1,141 @@
+"""The target EKF, L(5)-(10) and Appendix A, L(28)-(35).
+
+State x_T = [p_WT, q_WT, v_WT] (L(5)); error state [dp, dalpha, dv] (9) with the orientation error in
+the tangent space, q_WT = exp(dalpha) * q_bar (L(10), global perturbation); constant-velocity,
+constant-orientation prediction (L(6)-(8), (28)-(31)) with the paper's noise densities
+sigma_rot = [0.02, 0.02, 0.2] rad/sqrt(Hz), sigma_vel = [0.1, 0.1, 0.1] m/s/sqrt(Hz) (L Sec. 5.2.2);
+the discrete noise is the exact integral of the white-noise acceleration model (variance
+sigma^2 dt on the velocity, sigma^2 dt^3/3 and sigma^2 dt^2/2 on position and position-velocity;
+the paper writes the variance as sigma dt). Updates: one keypoint at a time (L Appendix A), with
+h_t = u(T_CW T_WT r_t) (L(9)) in the rectified pinhole image, L(32), whose Jacobian is L(33)-(35) with
+D = I; for the global perturbation d(R_WT r_t)/d alpha = -[R_WT r_t]x (L(35) prints the opposite
+sign); Joseph-form covariance update; multiplicative orientation update q+ = exp(dalpha) * q-.
+Residuals failing the chi-square test (d^2 > 9, L Sec. 5.2.2) are rejected.
+"""
+import dataclasses as dc
+
+import numpy as np
+
+from alight.systems.params import bounded
+from alight.systems.rotations import (quaternion_from_rotation_vector, quaternion_product,
+                                      rotation_matrix)
+
+
+@dc.dataclass
+class TargetEkfParams:
+    sigma_rot: list[float] = bounded([0.02, 0.02, 0.2], 0.0, 10.0, "rad/sqrt(Hz)")
+    sigma_vel: list[float] = bounded([0.1, 0.1, 0.1], 0.0, 100.0, "m/s/sqrt(Hz)")
+    keypoint_noise_std: float = bounded(5.0, 0.01, 100.0, "px")        # L Sec. 5.2.2
+    chi2_threshold: float = bounded(9.0, 0.1, 1000.0)                   # L Sec. 5.2.2
+    initial_position_std: float = bounded(0.03, 0.0, 1.0)   # x range, from a detection
+    initial_position_std_min: float = bounded(0.05, 0.0, 10.0, "m")
+    initial_rotation_std: float = bounded(5.0, 0.0, 180.0, "deg")
+    initial_velocity_std: float = bounded(5.0, 0.0, 100.0, "m/s")
+
+
+def skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+@dc.dataclass
+class KeypointPrediction:
+    """h_t and its Jacobian for one keypoint at the current state."""
+    uv: np.ndarray      # (2,) rectified pixels
+    H: np.ndarray       # (2, 9)
+    p_CK: np.ndarray    # (3,) the keypoint in the camera frame
+
+
+class TargetEkf:
+    """The filter's state at time `t`: p, q (w, x, y, z), v in W (= the state estimate's frame), P."""
+
+    def __init__(self, params: TargetEkfParams):
+        self.params = params
+        self.t = float("nan")
+        self.p = np.zeros(3)
+        self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.v = np.zeros(3)
+        self.P = np.eye(9)
+        self._R = params.keypoint_noise_std ** 2 * np.eye(2)
+
+    @property
+    def initialized(self) -> bool:
+        return np.isfinite(self.t)
+
+    def initialize(self, t: float, p_WT: np.ndarray, q_WT: np.ndarray, range_m: float) -> None:
+        """From a full detection at time t (velocity zero, L Sec. 5.2.2)."""
+        k = self.params
+        self.t = float(t)
+        self.p = np.array(p_WT, float)
+        self.q = np.array(q_WT, float) / np.linalg.norm(q_WT)
+        self.v = np.zeros(3)
+        sp = max(k.initial_position_std * range_m, k.initial_position_std_min)
+        self.P = np.diag([sp ** 2] * 3 + [np.radians(k.initial_rotation_std) ** 2] * 3
+                         + [k.initial_velocity_std ** 2] * 3)
+
+    # --- prediction, L(28)-(31) ---------------------------------------------------------------
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """F_d (L(31)) and the discrete process noise Q over dt."""
+        F = np.eye(9)
+        F[0:3, 6:9] = dt * np.eye(3)
+        s_vel2 = np.square(self.params.sigma_vel)
+        Q = np.zeros((9, 9))
+        Q[0:3, 0:3] = np.diag(s_vel2 * dt ** 3 / 3)
+        Q[0:3, 6:9] = Q[6:9, 0:3] = np.diag(s_vel2 * dt ** 2 / 2)
+        Q[6:9, 6:9] = np.diag(s_vel2 * dt)
+        Q[3:6, 3:6] = np.diag(np.square(self.params.sigma_rot) * dt)
+        return F, Q
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(p, q, v, P) predicted to t >= self.t without changing the filter."""
+        dt = max(0.0, t - self.t)
+        F, Q = self.transition(dt)
+        return self.p + self.v * dt, self.q.copy(), self.v.copy(), F @ self.P @ F.T + Q
+
+    def predict(self, t: float) -> None:
+        if t > self.t:
+            self.p, self.q, self.v, self.P = self.predicted(t)
+            self.t = float(t)
+
+    # --- keypoint update, L(9), (32)-(35) -----------------------------------------------------
+    def keypoint(self, p_TK: np.ndarray, R_WC: np.ndarray, p_WC: np.ndarray,
+                 K: np.ndarray) -> KeypointPrediction | None:
+        """The predicted rectified pixel of keypoint p_TK seen by a camera at (R_WC, p_WC) with
+        rectified intrinsics K, and H = d h / d x (None behind the camera)."""
+        R_WT = rotation_matrix(self.q)
+        r_W = R_WT @ p_TK
+        R_CW = R_WC.T
+        p_CK = R_CW @ (self.p + r_W - p_WC)
+        if p_CK[2] <= 1e-3:
+            return None
+        x, y, z = p_CK
+        U = np.array([[K[0, 0] / z, 0.0, -K[0, 0] * x / z ** 2],
+                      [0.0, K[1, 1] / z, -K[1, 1] * y / z ** 2]])   # L(34), D = I
+        J = np.hstack([np.eye(3), -skew(r_W)])                       # L(35)
+        H = np.zeros((2, 9))
+        H[:, 0:6] = U @ R_CW @ J                                     # L(33)
+        uv = np.array([K[0, 0] * x / z + K[0, 2], K[1, 1] * y / z + K[1, 2]])
+        return KeypointPrediction(uv, H, p_CK)
+
+    def mahalanobis2(self, prediction: KeypointPrediction, uv: np.ndarray) -> float:
+        r = np.asarray(uv, float) - prediction.uv
+        S = prediction.H @ self.P @ prediction.H.T + self._R
+        return float(r @ np.linalg.solve(S, r))
+
+    def update(self, prediction: KeypointPrediction, uv: np.ndarray) -> tuple[bool, float]:
+        """One keypoint measurement: accepted (passes the chi-square test) and its d^2."""
+        H = prediction.H
+        r = np.asarray(uv, float) - prediction.uv
+        S = H @ self.P @ H.T + self._R
+        d2 = float(r @ np.linalg.solve(S, r))
+        if not np.isfinite(d2) or d2 > self.params.chi2_threshold:
+            return False, d2
+        K = np.linalg.solve(S, H @ self.P).T
+        dx = K @ r
+        self.p = self.p + dx[0:3]
+        self.q = quaternion_product(quaternion_from_rotation_vector(dx[3:6]), self.q)
+        self.q /= np.linalg.norm(self.q)
+        self.v = self.v + dx[6:9]
+        A = np.eye(9) - K @ H
+        self.P = A @ self.P @ A.T + K @ self._R @ K.T
+        self.P = (self.P + self.P.T) / 2
+        return True, d2

@@ -1,0 +1,280 @@
+"""The target estimator: down-camera frames -> detection / keypoint tracking -> target EKF, L Sec. 5.2
+(detector.py, keypoint_tracker.py, target_ekf.py).
+
+Each new frame is placed in time by its stamp: the camera pose T_WD of L(9) is the state estimate
+interpolated at the stamp (a short history of `state_estimate` samples is kept) times the camera
+extrinsics X_BC of the frame's calibration. With an initialized filter the keypoints are tracked from
+the predicted pose and fused one by one; when fewer than `min_tracked_keypoints` are accepted, the
+detector runs and its corners are fused the same way, or, with no accepted keypoint for
+`reinit_after`, the filter is re-initialized from the detection (L Sec. 5.2.2: initialization from a
+full detection). Frames of the `geometric` source carry keypoints instead of an image: their
+"detection" is the pose from the four observed corners and their "tracking" is the observed
+keypoints; the EKF, its gating and the pose computation are the same code for both sources.
+Between frames the estimate is predicted to the output time, so its covariance grows while no
+measurement arrives.
+"""
+import copy
+import dataclasses as dc
+import time
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import STATE_ESTIMATE, TARGET_ESTIMATE, CameraFrame, VectorLayout
+from alight.systems.params import bounded
+from alight.systems.perception.detector import (DetectorParams, PatternDetector, Rectifier)
+from alight.systems.perception.keypoint_tracker import KeypointTracker, KeypointTrackerParams
+from alight.systems.perception.pattern import CORNER_IDS, Pattern
+from alight.systems.perception.target_ekf import TargetEkf, TargetEkfParams
+from alight.systems.rotations import conjugate, quaternion_product, rotation_matrix
+from alight.systems.sensors.down_camera_lens import Lens
+
+
+@dc.dataclass
+class TargetEstimatorParams:
+    period: float = bounded(0.01, 0.001, 1.0, "s")
+    pose_history: float = bounded(1.0, 0.05, 60.0, "s")
+    max_pose_extrapolation: float = bounded(0.1, 0.0, 1.0, "s")
+    min_tracked_keypoints: int = bounded(4, 0, 100)
+    reinit_after: float = bounded(0.5, 0.0, 60.0, "s")
+    lost_timeout: float = bounded(2.0, 0.0, 600.0, "s")
+    detector: DetectorParams = dc.field(default_factory=DetectorParams)
+    tracker: KeypointTrackerParams = dc.field(default_factory=KeypointTrackerParams)
+    ekf: TargetEkfParams = dc.field(default_factory=TargetEkfParams)
+
+
+# `perception_status`: frames processed, frames skipped (no camera pose at their stamp), detections,
+# (re-)initializations, keypoints accepted and rejected (chi-square) in the last frame, detection
+# used in the last frame (0/1), processing time of the last frame [s].
+PERCEPTION_STATUS = VectorLayout("perception_status", [
+    ("frames", 1), ("skipped", 1), ("detections", 1), ("initializations", 1), ("accepted", 1),
+    ("rejected", 1), ("detected", 1), ("compute_time", 1)])
+
+
+class PoseHistory:
+    """Recent state-estimate poses of B, interpolated at camera stamps."""
+
+    def __init__(self, length: float):
+        self.length = length
+        self.t = np.zeros(0)
+        self.p = np.zeros((0, 3))
+        self.q = np.zeros((0, 4))
+        self.v = np.zeros((0, 3))
+
+    def add(self, t: float, p, q, v) -> None:
+        if len(self.t) and t <= self.t[-1]:
+            return
+        keep = self.t > t - self.length
+        self.t = np.append(self.t[keep], t)
+        self.p = np.vstack([self.p[keep], p])
+        self.q = np.vstack([self.q[keep], q])
+        self.v = np.vstack([self.v[keep], v])
+
+    def clear(self) -> None:
+        self.__init__(self.length)
+
+    def at(self, t: float, max_extrapolation: float) -> RigidTransform | None:
+        if not len(self.t) or t < self.t[0] or t > self.t[-1] + max_extrapolation:
+            return None
+        if t >= self.t[-1]:
+            p = self.p[-1] + self.v[-1] * (t - self.t[-1])
+            q = self.q[-1]
+        else:
+            i = int(np.searchsorted(self.t, t, side="right")) - 1
+            a = (t - self.t[i]) / (self.t[i + 1] - self.t[i])
+            p = (1 - a) * self.p[i] + a * self.p[i + 1]
+            q1 = self.q[i + 1] if self.q[i] @ self.q[i + 1] >= 0 else -self.q[i + 1]
+            q = (1 - a) * self.q[i] + a * q1
+        return RigidTransform(Quaternion(q / np.linalg.norm(q)), p)
+
+
+@dc.dataclass
+class EstimatorState:
+    ekf: TargetEkf
+    poses: PoseHistory
+    valid: bool = False
+    last_frame: float = float("nan")
+    last_accepted: float = float("nan")
+    frame_counter: float = 0.0
+    status: np.ndarray = dc.field(default_factory=lambda: np.zeros(PERCEPTION_STATUS.size))
+
+
+class TargetEstimator(LeafSystem):
+    """Input  `down_image`        CameraFrame (image, or keypoints of the geometric source)
+    Input  `state_estimate`    STATE_ESTIMATE (the vehicle's pose in frame E)
+    Output `target_estimate`   TARGET_ESTIMATE, predicted to the output time
+    Output `perception_status` PERCEPTION_STATUS
+    """
+
+    def __init__(self, pattern: Pattern, params: TargetEstimatorParams):
+        super().__init__()
+        self._params = params
+        self._pattern = pattern
+        self._rectifier = Rectifier(params.detector)
+        self._detector = PatternDetector(pattern, params.detector)
+        self._tracker = KeypointTracker(pattern, params.tracker)
+        self._frame = self.DeclareAbstractInputPort("down_image", AbstractValue.Make(CameraFrame()))
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._state = self.DeclareAbstractState(AbstractValue.Make(EstimatorState(
+            TargetEkf(params.ekf), PoseHistory(params.pose_history))))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareVectorOutputPort("target_estimate", TARGET_ESTIMATE.size, self._calc_estimate,
+                                     {self.abstract_state_ticket(self._state), self.time_ticket()})
+        self.DeclareVectorOutputPort("perception_status", PERCEPTION_STATUS.size,
+                                     self._calc_status,
+                                     {self.abstract_state_ticket(self._state)})
+
+    # --- events ---------------------------------------------------------------------------------
+    def _update(self, context, state):
+        st = copy.deepcopy(context.get_abstract_state(self._state).get_value())
+        estimate = self._estimate.Eval(context)
+        if STATE_ESTIMATE.get(estimate, "valid") > 0.5:
+            self._record_pose(st, estimate)
+        frame = self._frame.Eval(context)
+        if frame.valid and frame.calibration is not None and not frame.stamp <= st.last_frame:
+            start = time.perf_counter()
+            self.process(st, frame)
+            st.status[PERCEPTION_STATUS.slice("compute_time")] = time.perf_counter() - start
+        state.get_mutable_abstract_state(self._state).set_value(st)
+
+    def _record_pose(self, st: EstimatorState, estimate: np.ndarray) -> None:
+        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
+        if counter != st.frame_counter:
+            _reexpress(st.ekf, STATE_ESTIMATE.get(estimate, "p_OldNew"),
+                       STATE_ESTIMATE.get(estimate, "q_OldNew"))
+            st.poses.clear()
+            st.frame_counter = counter
+        st.poses.add(STATE_ESTIMATE.get(estimate, "stamp"), STATE_ESTIMATE.get(estimate, "p_EB"),
+                     STATE_ESTIMATE.get(estimate, "q_EB"), STATE_ESTIMATE.get(estimate, "v_EB"))
+
+    def process(self, st: EstimatorState, frame: CameraFrame) -> None:
+        """One frame: tracking and/or detection, EKF updates (public for tests and benchmarks)."""
+        p = self._params
+        status = st.status
+        st.last_frame = frame.stamp
+        X_WB = st.poses.at(frame.stamp, p.max_pose_extrapolation)
+        if X_WB is None:
+            status[PERCEPTION_STATUS.slice("skipped")] += 1
+            return
+        status[PERCEPTION_STATUS.slice("frames")] += 1
+        lens = Lens.from_calibration(frame.calibration)
+        X_WC = X_WB @ RigidTransform(lens.X_BC)
+        K = lens.K_rectified
+        images = self._images(frame, lens)
+        ekf = st.ekf
+        accepted = rejected = 0
+        if st.valid:
+            ekf.predict(frame.stamp)
+            measurements = self._track(frame, images, lens, X_WC.inverse() @ _X_WT(ekf))
+            accepted, rejected = self._fuse(ekf, measurements, X_WC, K)
+        detected = 0
+        if accepted < p.min_tracked_keypoints:
+            reference = (X_WC.inverse() @ _X_WT(ekf)).rotation().matrix() \
+                if ekf.initialized else None
+            detection = self._detect(frame, images, lens, reference)
+            if detection is not None:
+                status[PERCEPTION_STATUS.slice("detections")] += 1
+                detected = 1
+                stale = not (frame.stamp - st.last_accepted <= p.reinit_after)
+                if not st.valid or (accepted == 0 and stale):
+                    X_WT = X_WC @ detection[0]
+                    ekf.initialize(frame.stamp, X_WT.translation(),
+                                   X_WT.rotation().ToQuaternion().wxyz(),
+                                   float(np.linalg.norm(detection[0].translation())))
+                    st.valid = True
+                    status[PERCEPTION_STATUS.slice("initializations")] += 1
+                    accepted += len(CORNER_IDS)
+                else:
+                    a, r = self._fuse(ekf, list(zip(CORNER_IDS, detection[1])), X_WC, K)
+                    accepted, rejected = accepted + a, rejected + r
+        if accepted > 0:
+            st.last_accepted = frame.stamp
+        if st.valid and not frame.stamp - st.last_accepted <= p.lost_timeout:
+            st.valid = False
+        status[PERCEPTION_STATUS.slice("accepted")] = accepted
+        status[PERCEPTION_STATUS.slice("rejected")] = rejected
+        status[PERCEPTION_STATUS.slice("detected")] = detected
+
+    # --- steps ----------------------------------------------------------------------------------
+    def _images(self, frame, lens):
+        if frame.image is None:
+            return None
+        rectified = self._rectifier.rectify(frame.image, lens)
+        smoothed = self._rectifier.smooth(rectified)
+        return smoothed, self._rectifier.binarize(smoothed), self._rectifier.valid(lens)
+
+    def _track(self, frame, images, lens, X_CT_predicted) -> list[tuple[int, np.ndarray]]:
+        if images is not None:
+            _, binary, valid = images
+            return [(m.id, m.uv) for m in self._tracker.match(binary, valid, lens.K_rectified,
+                                                              X_CT_predicted)]
+        uv = lens.rectify_points(frame.keypoints)
+        return list(zip((int(i) for i in frame.keypoint_ids), uv))
+
+    def _detect(self, frame, images, lens, R_CT_reference):
+        """(X_CT, corners in rectified pixels in keypoint order) of the best detection, or None."""
+        if images is not None:
+            smoothed, binary, valid = images
+            detections = self._detector.detect(smoothed, binary, valid, lens.K_rectified,
+                                               R_CT_reference)
+            return (detections[0].X_CT, detections[0].corners) if detections else None
+        ids = list(frame.keypoint_ids)
+        if not all(i in ids for i in CORNER_IDS):
+            return None
+        corners = lens.rectify_points(frame.keypoints[[ids.index(i) for i in CORNER_IDS]])
+        X_CT = self._detector.pose(corners, lens.K_rectified, symmetric=False)
+        return None if X_CT is None else (X_CT, corners)
+
+    def _fuse(self, ekf: TargetEkf, measurements, X_WC: RigidTransform, K) -> tuple[int, int]:
+        R_WC, p_WC = X_WC.rotation().matrix(), X_WC.translation()
+        accepted = rejected = 0
+        for k, uv in measurements:
+            prediction = ekf.keypoint(self._pattern.p_TK[k], R_WC, p_WC, K)
+            if prediction is None:
+                continue
+            ok, _ = ekf.update(prediction, uv)
+            accepted += ok
+            rejected += not ok
+        return accepted, rejected
+
+    # --- outputs --------------------------------------------------------------------------------
+    def _calc_estimate(self, context, output):
+        st = context.get_abstract_state(self._state).get_value()
+        t = context.get_time()
+        ekf = st.ekf
+        if not ekf.initialized:
+            output.SetFromVector(TARGET_ESTIMATE.pack(
+                stamp=t, p_WT=0.0, q_WT=[1, 0, 0, 0], v_WT=0.0, var_p=np.inf, var_rot=np.inf,
+                var_v=np.inf, last_measurement=np.nan, valid=0.0, keypoints=0.0,
+                frame_counter=st.frame_counter))
+            return
+        p, q, v, P = ekf.predicted(t)
+        variances = np.diag(P)
+        output.SetFromVector(TARGET_ESTIMATE.pack(
+            stamp=t, p_WT=p, q_WT=q, v_WT=v, var_p=variances[0:3], var_rot=variances[3:6],
+            var_v=variances[6:9], last_measurement=st.last_accepted, valid=float(st.valid),
+            keypoints=PERCEPTION_STATUS.get(st.status, "accepted"),
+            frame_counter=st.frame_counter))
+
+    def _calc_status(self, context, output):
+        output.SetFromVector(context.get_abstract_state(self._state).get_value().status)
+
+
+def _X_WT(ekf: TargetEkf) -> RigidTransform:
+    return RigidTransform(Quaternion(ekf.q / np.linalg.norm(ekf.q)), ekf.p)
+
+
+def _reexpress(ekf: TargetEkf, p_OldNew, q_OldNew) -> None:
+    """The estimator frame switched (M Sec. 3.5): express the target in the new frame."""
+    if not ekf.initialized:
+        return
+    q_NewOld = conjugate(np.asarray(q_OldNew, float))
+    R = rotation_matrix(q_NewOld)
+    ekf.p = R @ (ekf.p - np.asarray(p_OldNew, float))
+    ekf.v = R @ ekf.v
+    ekf.q = quaternion_product(q_NewOld, ekf.q)
+    G = np.kron(np.eye(3), R)
+    ekf.P = G @ ekf.P @ G.T

@@ -1,0 +1,1 @@
+"""The moving target: the car with its landing platform and its motion profiles."""

@@ -1,0 +1,104 @@
+"""The target vehicle in the MultibodyPlant: a car carrying the landing platform (L Sec. 1: MBZIRC
+2017 Challenge 1, a 1.5 m x 1.5 m platform on a moving vehicle), moved along its motion profile by
+three PD-actuated joints (x, y, heading) with SAP's implicit PD controllers. The platform has
+contact geometry, so a landing on it is judged physically.
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import FixedOffsetFrame, PdControllerGains, PrismaticJoint
+from pydrake.systems.framework import LeafSystem
+
+from alight.models import model_path
+from alight.systems.params import bounded, choice, load_params
+from alight.systems.target.motion import FieldTestParams, FigureEightParams, StraightParams
+
+PLATFORM_BODY = "platform"
+
+
+@dc.dataclass
+class TargetParams:
+    profile: str = choice("none", "straight", "figure_eight", "field_test")
+    model: str = "target_vehicle.sdf"
+    pattern: str = "target_pattern.yaml"
+    platform_height: float = bounded(1.0, 0.2, 5.0, "m")
+    initial_position: list[float] = bounded([0.0, -40.0], -1e4, 1e4, "m")
+    initial_heading: float = bounded(90.0, -360.0, 360.0, "deg")
+    tracking_frequency: float = bounded(4.0, 0.5, 50.0, "Hz")
+    straight: StraightParams = dc.field(default_factory=StraightParams)
+    figure_eight: FigureEightParams = dc.field(default_factory=FigureEightParams)
+    field_test: FieldTestParams = dc.field(default_factory=FieldTestParams)
+
+
+def load_target_params(filename: str = "target.yaml") -> TargetParams:
+    return load_params(TargetParams, model_path(filename))
+
+
+@dc.dataclass(frozen=True)
+class TargetVehicle:
+    instance: object       # ModelInstanceIndex
+    platform: object       # the platform body (its frame is T)
+
+
+def add_target_vehicle(plant: MultibodyPlant, params: TargetParams) -> TargetVehicle:
+    """Adds the car, its planar joints and their PD actuators (before Finalize); the default pose
+    is the profile's start."""
+    (instance,) = Parser(plant).AddModels(model_path(params.model))
+    base = plant.AddFrame(FixedOffsetFrame("target_base", plant.world_frame(), RigidTransform(
+        [0.0, 0.0, params.platform_height]), instance))
+    carriage_x = plant.GetBodyByName("carriage_x", instance)
+    x_joint = plant.AddJoint(PrismaticJoint("x", base, carriage_x.body_frame(), [1.0, 0.0, 0.0]))
+    y_joint = plant.GetJointByName("y", instance)
+    heading = plant.GetJointByName("heading", instance)
+    platform = plant.GetBodyByName(PLATFORM_BODY, instance)
+    bodies = [plant.GetBodyByName(name, instance) for name in ("carriage_x", "carriage_y")]
+    mass = sum(b.default_mass() for b in bodies) + platform.default_mass()
+    inertia_z = platform.default_spatial_inertia().CalcRotationalInertia().get_moments()[2]
+    omega = 2 * np.pi * params.tracking_frequency
+    for joint, m in ((x_joint, mass), (y_joint, mass), (heading, inertia_z)):
+        actuator = plant.AddJointActuator(joint.name(), joint)
+        actuator.set_controller_gains(PdControllerGains(p=m * omega ** 2, d=2 * m * omega))
+    x0, y0 = params.initial_position
+    x_joint.set_default_translation(x0)
+    y_joint.set_default_translation(y0)
+    heading.set_default_angle(np.radians(params.initial_heading))
+    return TargetVehicle(instance, platform)
+
+
+class PlatformState(LeafSystem):
+    """The platform body's state in the free-body layout, for `GroundTruth` and the geometric camera.
+
+    Input  `body_poses`            the plant's body poses
+    Input  `body_spatial_velocities` the plant's body spatial velocities
+    Output `target_state`          (13) [q_WT, p_WT, w_WT (W), v_WT (W)] of the target frame T
+    """
+
+    def __init__(self, platform_index):
+        super().__init__()
+        self._index = int(platform_index)
+        self._poses = self.DeclareAbstractInputPort(
+            "body_poses", _abstract_list(RigidTransform()))
+        self._velocities = self.DeclareAbstractInputPort(
+            "body_spatial_velocities", _abstract_list_velocity())
+        self.DeclareVectorOutputPort("target_state", 13, self._calc)
+
+    def _calc(self, context, output):
+        X_WT = self._poses.Eval(context)[self._index]
+        V_WT = self._velocities.Eval(context)[self._index]
+        output.SetFromVector(np.concatenate([
+            X_WT.rotation().ToQuaternion().wxyz(), X_WT.translation(), V_WT.rotational(),
+            V_WT.translational()]))
+
+
+def _abstract_list(value):
+    from pydrake.common.value import AbstractValue
+    return AbstractValue.Make([value])
+
+
+def _abstract_list_velocity():
+    from pydrake.common.value import AbstractValue
+    from pydrake.multibody.math import SpatialVelocity
+    return AbstractValue.Make([SpatialVelocity()])
