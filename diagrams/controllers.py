@@ -1,0 +1,42 @@
+"""The flight-stack controllers (M Sec. 5) from their parameter file, models/controllers.yaml."""
+import dataclasses as dc
+
+from alight.models import model_path
+from alight.systems.control.disturbance import DisturbanceLimits
+from alight.systems.control.failsafe import FailsafeController, FailsafeParams
+from alight.systems.control.force_controller import VehicleModel
+from alight.systems.control.mpc_force import MpcForceController, MpcForceParams
+from alight.systems.control.se3 import Se3Controller, Se3Params
+from alight.systems.control.so3 import So3Params
+from alight.systems.params import bounded, load_params
+
+CONTROLLERS = ("se3", "mpc", "failsafe")
+
+
+@dc.dataclass
+class ControllersConfig:
+    period: float = bounded(0.01, 0.001, 0.1, "s")  # 100 Hz (DESIGN.md)
+    vehicle: VehicleModel = dc.field(default_factory=VehicleModel)
+    so3: So3Params = dc.field(default_factory=So3Params)
+    disturbance_limits: DisturbanceLimits = dc.field(default_factory=DisturbanceLimits)
+    se3: Se3Params = dc.field(default_factory=Se3Params)
+    mpc: MpcForceParams = dc.field(default_factory=MpcForceParams)
+    failsafe: FailsafeParams = dc.field(default_factory=FailsafeParams)
+
+
+def load_controllers_config(filename: str = "controllers.yaml") -> ControllersConfig:
+    """A path, or a file name in models/."""
+    return load_params(ControllersConfig, model_path(filename))
+
+
+def make_controller(name: str, config: ControllersConfig):
+    """The LeafSystem of controller `name` (one of CONTROLLERS)."""
+    if name == "se3":
+        return Se3Controller(config.vehicle, config.so3, config.se3, config.disturbance_limits,
+                             config.period)
+    if name == "mpc":
+        return MpcForceController(config.vehicle, config.so3, config.mpc,
+                                  config.disturbance_limits, config.period)
+    if name == "failsafe":
+        return FailsafeController(config.vehicle, config.failsafe, config.period)
+    raise ValueError(f"unknown controller {name!r}: expected one of {list(CONTROLLERS)}")

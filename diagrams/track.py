@@ -1,0 +1,272 @@
+"""The M Sec. 8 experiments with the flight-stack controllers (`alight track`): take off, fly a step
+sequence (M Sec. 8.1) or the 5 m circle (M Sec. 8.2) with the SE(3) or the MPC force-feedback
+controller, optionally under estimator noise (M Sec. 8.3) or an estimator jump (M Sec. 8.4), and
+score the run against the simulation's ground truth.
+
+The diagram: simulated vehicle -> mocap odometry -> (fault injector) -> controllers, switched by a
+`TimedSwitch` (the control manager's stand-in) -> vehicle. The reference chi is analytic
+(alight.systems.control.analytic_reference) until the trackers exist.
+"""
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+from pydrake.common import RandomDistribution
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import RandomSource
+
+from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
+                                         make_controller)
+from alight.diagrams.hover import default_run_dir
+from alight.diagrams.mocap import add_mocap
+from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
+from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.simulation import simulate
+from alight.systems.boundary import CONTROLLER_STATUS, GROUND_TRUTH, REFERENCE, STATE_ESTIMATE
+from alight.systems.control import analytic_reference as ref
+from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
+from alight.systems.control.timed_switch import TimedSwitch
+from alight.systems.params import bounded, choice
+from alight.systems.plant.hexacopter import load_hexacopter_params
+from alight.systems.rotations import tilt_deg
+from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults
+from alight.systems.sensors.mocap import MocapParams
+
+TRAJECTORIES = ("circle", "steps", "hover")
+
+
+@dc.dataclass
+class TrackExperiment:
+    """One `alight track` experiment (the command line's options)."""
+    trajectory: str = choice(*TRAJECTORIES)
+    controller: str = choice("se3", "mpc")
+    radius: float = bounded(5.0, 0.5, 100.0, "m")        # circle, M Sec. 8.2
+    speed: float = bounded(7.0, 0.1, 20.0, "m/s")
+    heading: str = choice("center", "constant")
+    laps: float = bounded(2.0, 0.25, 100.0)
+    ramp: float = bounded(3.0, 0.5, 30.0, "s")           # circle's angular-speed ramp
+    altitude: float = bounded(3.0, 0.5, 100.0, "m")
+    step_sizes: list[float] = bounded([1.0, 2.0, 4.0], -50.0, 50.0, "m")  # along x, M Sec. 8.1
+    step_axes: str = choice("x", "xyz")                  # single axis (Fig. 7) or 3D (Fig. 8)
+    step_hold: float = bounded(3.0, 0.5, 60.0, "s")
+    step_limits: list[float] = bounded([9.0, 12.0, 50.0], 0.1, 1000.0)  # v, a, j of M Sec. 8.1
+    hover_time: float = bounded(10.0, 0.0, 3600.0, "s")  # `hover` trajectory, and the settle time
+    settle: float = bounded(2.0, 0.0, 60.0, "s")         # hold before the experiment starts
+    estimator_noise: float = bounded(0.0, 0.0, 10.0, "m, m/s")  # M Fig. 12, from the start mark
+    estimator_jump: float = bounded(0.0, -100.0, 100.0, "m")     # M Fig. 13, along x
+    jump_delay: float = bounded(2.0, 0.0, 60.0, "s")     # after the experiment start
+    failsafe_at: float = bounded(0.0, 0.0, 1e4, "s")     # > 0: switch to the failsafe then
+
+    def __post_init__(self):
+        if self.trajectory == "circle" and self.speed ** 2 / self.radius > 12.0:
+            raise ValueError(f"circle of radius {self.radius} m at {self.speed} m/s needs "
+                             f"{self.speed ** 2 / self.radius:.1f} m/s^2: at most 12 m/s^2")
+
+
+CLIMB_LIMITS = (1.5, 1.0, 2.0)   # m/s, m/s^2, m/s^3 of the take-off and of repositioning
+SPOOL_TIME = 2.0                 # s on the ground while the controller ramps its thrust up
+
+
+def make_trajectory(experiment: TrackExperiment, p_ground: np.ndarray) -> ref.Trajectory:
+    """Take-off from `p_ground`, the experiment, hold. Marks: `start` and `end` of the scored
+    part (for the circle, its constant-speed cruise)."""
+    e = experiment
+    eta0 = 0.0
+    pieces = ref.takeoff(p_ground, e.altitude, eta0, eta0, SPOOL_TIME, CLIMB_LIMITS)
+    p_top = np.asarray(p_ground, float) + [0.0, 0.0, e.altitude]
+    pieces.append(ref.hold(p_top, eta0, e.settle))
+    marks = {}
+    if e.trajectory == "circle":
+        centre = p_top - [e.radius, 0.0, 0.0]        # the circle passes through p_top
+        eta_start = np.pi if e.heading == "center" else eta0
+        pieces += [ref.Transition(p_top, p_top, eta0, eta_start, 2.0), ref.hold(p_top, eta_start, 1.0)]
+        circle = ref.Circle(centre, e.radius, e.speed, e.ramp, e.laps, e.heading == "center",
+                            eta0)
+        start = sum(p.duration for p in pieces)
+        pieces.append(circle)
+        marks = {"start": start + e.ramp, "end": start + e.ramp + circle.cruise}
+        end = circle.sample(circle.duration)
+        pieces.append(ref.hold(end.p, end.heading, e.settle))
+    elif e.trajectory == "steps":
+        sizes = np.asarray(e.step_sizes, float)
+        directions = np.ones(3) if e.step_axes == "xyz" else np.array([1.0, 0.0, 0.0])
+        # Out and back for each size: p_top + s d, p_top.
+        offsets = np.concatenate([[s * directions, np.zeros(3)] for s in sizes])
+        start = sum(p.duration for p in pieces)
+        pieces += ref.steps(p_top, eta0, offsets, e.step_hold, tuple(e.step_limits))
+        marks = {"start": start, "end": sum(p.duration for p in pieces)}
+    else:
+        start = sum(p.duration for p in pieces)
+        pieces.append(ref.hold(p_top, eta0, e.hover_time))
+        marks = {"start": start, "end": start + e.hover_time}
+    return ref.Trajectory(pieces, marks)
+
+
+def resting_position(vehicle_diagram) -> np.ndarray:
+    """p_WB of the vehicle at rest on the ground, from its default context."""
+    context = vehicle_diagram.CreateDefaultContext()
+    return GROUND_TRUTH.get(vehicle_diagram.GetOutputPort("ground_truth").Eval(context), "p_WB")
+
+
+def set_vehicle_mass(diagram, vehicle_config: SimVehicleConfig, root_context, mass: float
+                     ) -> None:
+    """Gives the simulated body of the diagram's `vehicle` the mass `mass` [kg] (its inertia
+    scales with it): a heavier payload than the controllers know of."""
+    plant = diagram.GetSubsystemByName("vehicle").GetSubsystemByName("plant")
+    body = plant.GetBodyByName(load_hexacopter_params(vehicle_config.vehicle).body)
+    body.SetMass(plant.GetMyMutableContextFromRoot(root_context), mass)
+
+
+@dc.dataclass
+class ControllerLoop:
+    """Handles to the closed loop built by `add_controller_loop`."""
+    vehicle: object
+    controllers: dict
+    switch: TimedSwitch
+    state_estimate_port: object
+    true_estimate_port: object
+    reference_port: object
+
+
+def add_controller_loop(builder, vehicle_diagram, controllers_config: ControllersConfig,
+                        trajectory: ref.Trajectory, names: list[str], start_times: list[float],
+                        faults: EstimateFaultParams | None = None,
+                        mocap: MocapParams | None = None) -> ControllerLoop:
+    """Vehicle + mocap (+ fault injector) + the named controllers, controller i active from
+    start_times[i], following the analytic `trajectory`."""
+    vehicle = builder.AddNamedSystem("vehicle", vehicle_diagram)
+    mocap_port = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
+    estimate = mocap_port
+    if faults is not None and faults.active:
+        injector = builder.AddNamedSystem("estimate_faults", EstimateFaults(faults))
+        noise = builder.AddNamedSystem("estimate_fault_noise", RandomSource(
+            RandomDistribution.kGaussian, 6, controllers_config.period))
+        builder.Connect(noise.get_output_port(), injector.GetInputPort("noise"))
+        builder.Connect(mocap_port, injector.GetInputPort("state_estimate"))
+        estimate = injector.GetOutputPort("state_estimate")
+    reference = builder.AddNamedSystem("reference", ref.AnalyticReference(
+        trajectory, controllers_config.period))
+    switch = builder.AddNamedSystem("switch", TimedSwitch(start_times, controllers_config.period))
+    controllers = {}
+    for i, name in enumerate(names):
+        controller = builder.AddNamedSystem(f"controller_{i}_{name}",
+                                            make_controller(name, controllers_config))
+        builder.Connect(estimate, controller.GetInputPort("state_estimate"))
+        builder.Connect(reference.GetOutputPort("reference"), controller.GetInputPort("reference"))
+        builder.Connect(switch.GetOutputPort(f"active_{i}"), controller.GetInputPort("active"))
+        builder.Connect(switch.GetOutputPort("fc_command"), controller.GetInputPort("last_command"))
+        builder.Connect(controller.GetOutputPort("fc_command"),
+                        switch.GetInputPort(f"fc_command_{i}"))
+        controllers[f"{i}_{name}"] = controller
+    builder.Connect(switch.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    return ControllerLoop(vehicle, controllers, switch, estimate, mocap_port,
+                          reference.GetOutputPort("reference"))
+
+
+def add_loop_logging(builder, loop: ControllerLoop, period: float) -> RunLoggers:
+    """The vehicle's streams, the (faulty) estimate, the reference, and per controller its status,
+    desired acceleration M(53) and disturbance estimate M(35)-(37)."""
+    loggers = add_run_logging(builder, loop.vehicle, loop.switch.GetOutputPort("fc_command"))
+    loggers.add(builder, "state_estimate", loop.state_estimate_port, STATE_ESTIMATE)
+    loggers.add(builder, "reference", loop.reference_port, REFERENCE)
+    for key, controller in loop.controllers.items():
+        loggers.add(builder, f"status_{key}", controller.GetOutputPort("controller_status"),
+                    CONTROLLER_STATUS, period)
+        if controller.HasOutputPort("disturbance_estimate"):
+            loggers.add(builder, f"disturbance_{key}",
+                        controller.GetOutputPort("disturbance_estimate"), DISTURBANCE_ESTIMATE,
+                        period)
+    return loggers
+
+
+def fly_track(vehicle_config: SimVehicleConfig, experiment: TrackExperiment, seed: int = 0,
+              run_dir=None, controllers_config: ControllersConfig | None = None, meshcat=None,
+              record=None, realtime_rate: float = 0.0, duration: float | None = None,
+              vehicle_mass: float | None = None, plots: bool = True) -> RunLog:
+    """Flies `experiment` and writes its run folder (with plots like M Fig. 7-13 if `plots`).
+    `vehicle_mass` [kg] replaces the simulated body's mass (the controllers are not told)."""
+    controllers_config = controllers_config or load_controllers_config()
+    vehicle_diagram = make_sim_vehicle(vehicle_config, meshcat)
+    trajectory = make_trajectory(experiment, resting_position(vehicle_diagram))
+    start = trajectory.marks["start"]
+    faults = EstimateFaultParams(noise_std=experiment.estimator_noise, noise_start=start,
+                                 jump=[experiment.estimator_jump, 0.0, 0.0],
+                                 jump_time=start + experiment.jump_delay)
+    names, starts = [experiment.controller], [0.0]
+    if experiment.failsafe_at > 0.0:
+        names, starts = names + ["failsafe"], starts + [experiment.failsafe_at]
+    builder = DiagramBuilder()
+    loop = add_controller_loop(builder, vehicle_diagram, controllers_config, trajectory, names,
+                               starts, faults)
+    loggers = add_loop_logging(builder, loop, controllers_config.period)
+    diagram = builder.Build()
+    if duration is None:
+        duration = trajectory.duration + (30.0 if experiment.failsafe_at > 0 else 0.0)
+    prepare = None if vehicle_mass is None else \
+        lambda context: set_vehicle_mass(diagram, vehicle_config, context, vehicle_mass)
+    simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate, prepare=prepare)
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("track", seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {
+        "command": "track", "seed": seed, "duration": duration, "experiment": experiment,
+        "marks": trajectory.marks, "controllers": names, "controller_starts": starts,
+        "vehicle_config": vehicle_config, "controllers_config": controllers_config,
+        "vehicle_mass": vehicle_mass})
+    run = RunLog(run_dir)
+    if plots:
+        from alight.diagrams.track_plots import plot_track
+        plot_track(run)
+    return run
+
+
+@dc.dataclass
+class TrackScore:
+    """Ground-truth figures of a track run over [start, end] (the scored window)."""
+    mean_position_error: float   # m, |p_WB - p_d| (true position vs the reference)
+    max_position_error: float    # m
+    max_tilt: float              # deg, angle of b3 from e3
+    max_speed: float             # m/s
+    max_acceleration: float      # m/s^2 (finite differences of the true velocity, 0.1 s)
+    mean_heading_error: float    # deg
+    window: tuple[float, float]  # s
+
+    def lines(self) -> list[str]:
+        return [f"scored window         {self.window[0]:.1f} s - {self.window[1]:.1f} s",
+                f"position error        mean {self.mean_position_error:.3f} m, "
+                f"max {self.max_position_error:.3f} m",
+                f"heading error         mean {self.mean_heading_error:.2f} deg",
+                f"max tilt              {self.max_tilt:.1f} deg",
+                f"max speed / accel.    {self.max_speed:.2f} m/s / {self.max_acceleration:.2f} "
+                "m/s^2"]
+
+
+def score(run: RunLog, start: float | None = None, end: float | None = None) -> TrackScore:
+    """Scores `run` against its reference and ground truth, by default over its marks."""
+    marks = run.metadata["marks"]
+    start = marks["start"] if start is None else start
+    end = marks["end"] if end is None else end
+    truth, reference = run["ground_truth"], run["reference"]
+    time = truth["time"].to_numpy()
+    inside = (time >= start) & (time <= end)
+    p = run.field("ground_truth", "p_WB").to_numpy()[inside]
+    # The reference is logged on the same 10 ms grid; interpolate to be safe.
+    p_d = np.column_stack([np.interp(time[inside], reference["time"], reference[f"p_{i}"])
+                           for i in range(3)])
+    heading_d = np.interp(time[inside], reference["time"], np.unwrap(reference["heading"]))
+    q = run.field("ground_truth", "q_WB").to_numpy()[inside]
+    tilt = tilt_deg(q)
+    eta = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]),
+                     1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+    heading_error = np.degrees(np.abs(np.angle(np.exp(1j * (eta - heading_d)))))
+    v = run.field("ground_truth", "v_WB").to_numpy()
+    stride = max(1, int(round(0.1 / np.median(np.diff(time)))))
+    a = np.linalg.norm(v[stride:] - v[:-stride], axis=1) / (time[stride:] - time[:-stride])
+    a_inside = inside[stride:] & inside[:-stride]
+    error = np.linalg.norm(p - p_d, axis=1)
+    return TrackScore(float(error.mean()), float(error.max()), float(tilt.max()),
+                      float(np.linalg.norm(v[inside], axis=1).max()),
+                      float(a[a_inside].max()) if a_inside.any() else 0.0,
+                      float(heading_error.mean()), (float(start), float(end)))
+
+
+__all__ = ["CONTROLLERS", "TrackExperiment", "fly_track", "score", "make_trajectory",
+           "add_controller_loop"]

@@ -1,0 +1,90 @@
+"""Disturbance and mass estimation, M(35)-(37): integrators of the position error in the world frame
+and in the heading frame, and the estimated mass.
+
+    d_w = sum k_iw o e_p dt                        world disturbance [N], M(35)
+    d_b = H_N sum k_ib o (H_n^T e_p) dt            body (heading-frame) disturbance [N], M(35)-(36)
+    m_e = m + delta_m,  delta_m = -sum k_m e_z dt  estimated mass [kg], M(37)
+
+with e_p = r - r_d. The x, y parts are the disturbance forces the controllers compensate with
+-(d_w + d_b) o [1, 1, 0] (M(38), M(39)). The z parts of M(35) only enter through M(37); since the
+heading rotation leaves z alone, their sum is one integrator, kept here as the mass difference
+delta_m directly, with the sign that makes a vehicle that sags below its reference heavier (the
+printed M(35)/(37) leave that sign to the reader). Each integrator is clamped to the limits of
+`DisturbanceLimits` (anti-windup).
+"""
+import dataclasses as dc
+
+import numpy as np
+
+from alight.systems.boundary import VectorLayout
+from alight.systems.params import bounded
+
+# The integrators: world disturbance d_w (x, y) [N]; the un-rotated body sum of M(35) (x, y) [N];
+# the mass difference delta_m [kg].
+DISTURBANCE = VectorLayout("disturbance", [("world", 2), ("body_sum", 2), ("mass_difference", 1)])
+
+# Published estimate: d_w (x, y), d_b = H_N body_sum (x, y) [N, in W]; m_e [kg].
+DISTURBANCE_ESTIMATE = VectorLayout("disturbance_estimate", [("d_w", 2), ("d_b", 2), ("m_e", 1)])
+
+
+@dc.dataclass
+class DisturbanceGains:
+    world: list[float] = bounded([1.0, 1.0], 0.0, 100.0, "N/(m s)")  # k_iw (x, y)
+    body: list[float] = bounded([1.0, 1.0], 0.0, 100.0, "N/(m s)")   # k_ib (x, y)
+    mass: float = bounded(0.3, 0.0, 100.0, "kg/(m s)")               # k_iw,z + k_ib,z
+
+
+@dc.dataclass
+class DisturbanceLimits:
+    world: float = bounded(10.0, 0.0, 1000.0, "N")    # per axis
+    body: float = bounded(10.0, 0.0, 1000.0, "N")     # per axis
+    mass: float = bounded(2.0, 0.0, 1000.0, "kg")     # |delta_m|
+
+
+def heading_matrix(eta: float) -> np.ndarray:
+    """M(36): rotation about e3 by the heading."""
+    c, s = np.cos(eta), np.sin(eta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def integrate(state: np.ndarray, e_p: np.ndarray, eta: float, dt: float,
+              gains: DisturbanceGains, limits: DisturbanceLimits) -> np.ndarray:
+    """One step of M(35) and of the mass difference; returns the new DISTURBANCE vector."""
+    L = DISTURBANCE
+    new = np.array(state, dtype=float)
+    world = L.get(state, "world") + np.asarray(gains.world) * e_p[:2] * dt
+    body = L.get(state, "body_sum") + np.asarray(gains.body) * (heading_matrix(eta).T @ e_p)[:2] \
+        * dt
+    mass = L.get(state, "mass_difference") - gains.mass * e_p[2] * dt
+    new[L.slice("world")] = np.clip(world, -limits.world, limits.world)
+    new[L.slice("body_sum")] = np.clip(body, -limits.body, limits.body)
+    new[L.slice("mass_difference")] = np.clip(mass, -limits.mass, limits.mass)
+    return new
+
+
+def forces(state: np.ndarray, eta: float) -> tuple[np.ndarray, np.ndarray]:
+    """d_w and d_b = H_N * body_sum as 3-vectors in W with zero z (the o [1, 1, 0] of M(38))."""
+    d_w = np.append(DISTURBANCE.get(state, "world"), 0.0)
+    d_b = heading_matrix(eta) @ np.append(DISTURBANCE.get(state, "body_sum"), 0.0)
+    return d_w, d_b
+
+
+def estimated_mass(nominal: float, state: np.ndarray) -> float:
+    """M(37): m_e = m + delta_m [kg]."""
+    return nominal + float(DISTURBANCE.get(state, "mass_difference"))
+
+
+def estimate_vector(nominal: float, state: np.ndarray, eta: float) -> np.ndarray:
+    """The DISTURBANCE_ESTIMATE published by the controllers."""
+    d_w, d_b = forces(state, eta)
+    return DISTURBANCE_ESTIMATE.pack(d_w=d_w[:2], d_b=d_b[:2], m_e=estimated_mass(nominal, state))
+
+
+def reexpress(state: np.ndarray, R_OldNew: np.ndarray) -> np.ndarray:
+    """The integrators after the estimator frame changes from Old to New (M Sec. 3.5): the world
+    disturbance is a vector in the frame and turns with it; the heading-frame sum and the mass
+    difference are unchanged (the heading itself is re-estimated in the new frame)."""
+    new = np.array(state, dtype=float)
+    world = np.append(DISTURBANCE.get(state, "world"), 0.0)
+    new[DISTURBANCE.slice("world")] = (R_OldNew.T @ world)[:2]
+    return new

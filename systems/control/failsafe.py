@@ -1,0 +1,138 @@
+"""The feedforward failsafe controller, M Sec. 5.10: a landing that needs no position feedback.
+
+On activation it takes the last estimated mass (the apparent mass M(34) of the last command's
+thrust, on that command's tilt: the vertical force the previous controller was producing, which is
+m_e g in hover) and the heading of the last command. It then commands, through the flight
+controller's own attitude loop (attitude+thrust mode, as the paper relies on the Pixhawk's),
+a level attitude at that heading and the hover thrust M(33) of that mass, decreasing at
+`thrust_decrease_rate` (fraction of the hover force per second) down to `descent_fraction` of it:
+a moderate, drag-limited descent that stops the vehicle from accelerating in any direction.
+
+Touchdown, then disarm: when the state estimate is valid, the vehicle is on the ground once it has
+been seen descending (faster than `descent_speed`) and its vertical speed (low-passed over
+`speed_filter_time`) then stays below
+`touchdown_speed` for `touchdown_time`; without a usable estimate, after `max_descent_time`.
+It then commands zero thrust and arm = 0.
+"""
+import dataclasses as dc
+import time
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, VectorLayout
+from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
+                                                     command_is_usable, level_command,
+                                                     status_vector)
+from alight.systems.params import bounded
+from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.thrust_curve import GRAVITY
+
+
+@dc.dataclass
+class FailsafeParams:
+    thrust_decrease_rate: float = bounded(0.02, 0.0, 1.0, "1/s")  # of the hover force
+    descent_fraction: float = bounded(0.95, 0.5, 1.0)            # floor, of the hover force
+    mass_range: list[float] = bounded([0.7, 1.5], 0.1, 10.0)     # of the nominal mass
+    descent_speed: float = bounded(0.3, 0.01, 10.0, "m/s")
+    touchdown_speed: float = bounded(0.1, 0.01, 10.0, "m/s")
+    touchdown_time: float = bounded(0.5, 0.0, 30.0, "s")
+    speed_filter_time: float = bounded(0.2, 0.0, 10.0, "s")  # low-pass on the estimated v_z
+    max_descent_time: float = bounded(60.0, 1.0, 3600.0, "s")
+
+
+_STATE = VectorLayout("failsafe_state", [
+    ("was_active", 1), ("start", 1), ("hover_force", 1), ("heading", 1), ("mass", 1),
+    ("descended", 1), ("quiet_time", 1), ("touched_down", 1), ("v_z", 1)])
+
+
+class FailsafeController(LeafSystem):
+    """Inputs  `state_estimate` STATE_ESTIMATE (only its vertical speed, when valid);
+            `reference` REFERENCE (unused: the failsafe needs none); `active` (1);
+            `last_command` FC_COMMAND
+    Outputs `fc_command` FC_COMMAND (attitude+thrust, level); `controller_status`;
+            `desired_acceleration` (3) the vertical acceleration the thrust gives at m_e [m/s^2]
+    """
+
+    def __init__(self, vehicle: VehicleModel, params: FailsafeParams, period: float = 0.01):
+        super().__init__()
+        self._vehicle, self._p, self._period = vehicle, params, period
+        self._curve = vehicle.curve
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self._active = self.DeclareVectorInputPort("active", 1)
+        self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
+        self._command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
+        self._status = self.DeclareDiscreteState(status_vector(ControllerReason.INACTIVE))
+        self._acceleration = self.DeclareDiscreteState(3)
+        self._state = self.DeclareDiscreteState(np.zeros(_STATE.size))
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareStateOutputPort("fc_command", self._command)
+        self.DeclareStateOutputPort("controller_status", self._status)
+        self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
+
+    def last_mass(self, last_command: np.ndarray) -> float:
+        """The mass the last command was holding up, M(34) on its tilt, within `mass_range`."""
+        lo, hi = np.asarray(self._p.mass_range) * self._vehicle.mass
+        if not command_is_usable(last_command) or FC_COMMAND.get(last_command, "arm") < 0.5:
+            return self._vehicle.mass
+        tilt_cos = rotation_matrix(FC_COMMAND.get(last_command, "q_WD"))[2, 2]
+        apparent = float(self._curve.apparent_mass(FC_COMMAND.get(last_command, "thrust")))
+        return float(np.clip(apparent * tilt_cos, lo, hi))
+
+    def _update(self, context, discrete_state):
+        start_clock = time.perf_counter()
+        now = context.get_time()
+        x = context.get_discrete_state(self._state).get_value().copy()
+        S = _STATE
+        if self._active.Eval(context)[0] < 0.5:
+            x[S.slice("was_active")] = 0.0
+            discrete_state.set_value(self._state, x)
+            discrete_state.set_value(self._status, status_vector(ControllerReason.INACTIVE))
+            return
+        if x[S.slice("was_active")][0] < 0.5:
+            last = self._last.Eval(context)
+            mass = self.last_mass(last)
+            flying = command_is_usable(last) and FC_COMMAND.get(last, "arm") > 0.5 \
+                and FC_COMMAND.get(last, "thrust") > 0.0
+            eta = heading(rotation_matrix(FC_COMMAND.get(last, "q_WD"))) \
+                if command_is_usable(last) else 0.0
+            x[:] = S.pack(was_active=1.0, start=now, hover_force=mass * GRAVITY, heading=eta,
+                          mass=mass, descended=0.0, quiet_time=0.0,
+                          touched_down=0.0 if flying else 1.0, v_z=0.0)
+        if x[S.slice("touched_down")][0] < 0.5:
+            self._detect_touchdown(x, self._estimate.Eval(context), now)
+        touched_down = x[S.slice("touched_down")][0] > 0.5
+        if touched_down:
+            force, arm = 0.0, 0.0
+        else:
+            fraction = max(self._p.descent_fraction, 1.0 - self._p.thrust_decrease_rate
+                           * (now - x[S.slice("start")][0]))
+            force, arm = fraction * x[S.slice("hover_force")][0], 1.0
+        thrust = float(self._curve.thrust(force)) if arm else 0.0
+        mass = x[S.slice("mass")][0]
+        discrete_state.set_value(self._command, level_command(now, x[S.slice("heading")][0],
+                                                              thrust, arm))
+        discrete_state.set_value(self._acceleration, [0.0, 0.0, force / mass - GRAVITY])
+        discrete_state.set_value(self._state, x)
+        discrete_state.set_value(self._status, status_vector(
+            ControllerReason.TOUCHDOWN if touched_down else ControllerReason.OK,
+            time.perf_counter() - start_clock))
+
+    def _detect_touchdown(self, x: np.ndarray, estimate: np.ndarray, now: float) -> None:
+        S = _STATE
+        if now - x[S.slice("start")][0] > self._p.max_descent_time:
+            x[S.slice("touched_down")] = 1.0
+            return
+        if STATE_ESTIMATE.get(estimate, "valid") < 0.5 or not np.all(np.isfinite(estimate)):
+            return
+        alpha = min(1.0, self._period / max(self._p.speed_filter_time, 1e-9))
+        v_z = x[S.slice("v_z")][0] + alpha * (STATE_ESTIMATE.get(estimate, "v_EB")[2]
+                                              - x[S.slice("v_z")][0])
+        x[S.slice("v_z")] = v_z
+        if v_z < -self._p.descent_speed:
+            x[S.slice("descended")] = 1.0
+        quiet = x[S.slice("descended")][0] > 0.5 and abs(v_z) < self._p.touchdown_speed
+        x[S.slice("quiet_time")] = x[S.slice("quiet_time")][0] + self._period if quiet else 0.0
+        if x[S.slice("quiet_time")][0] >= self._p.touchdown_time:
+            x[S.slice("touched_down")] = 1.0

@@ -1,0 +1,266 @@
+"""The part the SE(3) controller M(38) and the MPC force-feedback controller M(39) share.
+
+Both compute a desired force
+
+    f_d = m_e (a_fb + r''_d + g e3) - (d_w + d_b) o [1, 1, 0]
+
+from a feedback acceleration a_fb (the subclass: SE(3) state feedback or the MPC's c_d), the
+reference acceleration, the estimated mass M(37) and the disturbances M(35); then SO(3) force
+tracking M(17)-(31) turns f_d into body rates, and the thrust model M(32) turns f_d . b3 into the
+normalized thrust T_d. They publish the unbiased desired acceleration M(53)
+
+    a_d = (f(T_d) b3 + (d_w + d_b) o [1, 1, 0]) / m_e - g e3
+
+(printed M(53) divides g by m_e too; this is the dimensionally consistent form).
+
+The controller contract of alight.systems.boundary: only the active controller computes; on
+activation it starts from `last_command` (M Sec. 7.2): its thrust is the start of a thrust ramp
+(rate `thrust_ramp_rate`) toward the computed thrust, so the hand-over (or the take-off from the
+ground, where the last command is zero thrust) has no thrust step; when the last command was
+flying, its apparent mass M(34) on the current tilt seeds the mass estimate. The disturbance
+integrators start at zero and are frozen while the ramp lasts. When the estimator frame changes
+(frame_counter), the integrators are re-expressed in the new frame (M Sec. 3.5).
+
+A tick that cannot compute (invalid or non-finite estimate or reference, a failed solver, a
+non-finite result) outputs a finite, level attitude+thrust hover command and reports valid = 0 on
+`controller_status`, for the control manager to fall back.
+"""
+import dataclasses as dc
+import enum
+import time
+
+import numpy as np
+from pydrake.math import RotationMatrix
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
+                                     CommandMode, VectorLayout)
+from alight.systems.control import disturbance
+from alight.systems.control.disturbance import (DISTURBANCE, DISTURBANCE_ESTIMATE,
+                                                DisturbanceGains, DisturbanceLimits)
+from alight.systems.control.so3 import (E3, So3Params, body_rate_command, desired_orientation,
+                                        jerk_feedforward, limit_tilt)
+from alight.systems.params import bounded
+from alight.systems.rotations import heading, heading_quaternion, rotation_matrix
+from alight.systems.thrust_curve import GRAVITY, ThrustCurve
+
+
+class ControllerReason(enum.IntEnum):
+    """`controller_status.reason` of the flight-stack controllers."""
+    OK = 0
+    INACTIVE = 1
+    BAD_ESTIMATE = 2      # estimate invalid or not finite
+    BAD_REFERENCE = 3     # reference not finite
+    SOLVER_FALLBACK = 4   # the QP failed; the previous solution is used (still valid)
+    SOLVER_FAILED = 5     # the QP failed for too long
+    NOT_FINITE = 6        # the computation gave a non-finite command
+    TOUCHDOWN = 7         # failsafe: on the ground, disarming
+
+
+VALID_REASONS = (ControllerReason.OK, ControllerReason.SOLVER_FALLBACK, ControllerReason.TOUCHDOWN)
+
+
+@dc.dataclass
+class VehicleModel:
+    """What the controllers know of the vehicle: the weighed mass and the thrust curve M(32)
+    (`alight thrust-curve` fits a_t, b_t from hover flights)."""
+    mass: float = bounded(2.5, 0.05, 200.0, "kg")
+    a_t: float = bounded(0.1512, 1e-4, 10.0)
+    b_t: float = bounded(-0.1111, -1.0, 1.0)
+
+    @property
+    def curve(self) -> ThrustCurve:
+        return ThrustCurve(self.a_t, self.b_t)
+
+
+def status_vector(reason: ControllerReason, compute_time: float = 0.0,
+                  solver_status: float = 0.0) -> np.ndarray:
+    return CONTROLLER_STATUS.pack(valid=float(reason in VALID_REASONS), reason=float(reason),
+                                  compute_time=compute_time, solver_status=solver_status)
+
+
+def level_command(stamp: float, eta: float, thrust: float, arm: float) -> np.ndarray:
+    """Level attitude at heading `eta` with `thrust`: the safe command of a tick that cannot
+    compute, and the failsafe's command (M Sec. 5.10)."""
+    return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
+                           q_WD=heading_quaternion(eta), w_D=np.zeros(3),
+                           thrust=float(np.clip(thrust, 0.0, 1.0)), arm=arm)
+
+
+def command_is_usable(command: np.ndarray) -> bool:
+    """A finite FC_COMMAND with thrust in [0, 1] (what a controller may start from)."""
+    return bool(np.all(np.isfinite(command))
+                and 0.0 <= FC_COMMAND.get(command, "thrust") <= 1.0)
+
+
+_INTERNAL = VectorLayout("force_controller_state", [
+    ("was_active", 1), ("ramping", 1), ("ramp_thrust", 1), ("frame_counter", 1),
+    ("disturbance", DISTURBANCE.size)])
+
+
+class ForceController(LeafSystem):
+    """Base of the SE(3) and MPC force-feedback controllers (M(38), M(39)); see the module
+    docstring. Subclasses implement `_feedback_acceleration`.
+
+    Inputs  `state_estimate` STATE_ESTIMATE (frame E, z up); `reference` REFERENCE (chi, M(16));
+            `active` (1); `last_command` FC_COMMAND (the command last issued by any controller)
+    Outputs `fc_command` FC_COMMAND (body rates + thrust); `controller_status` CONTROLLER_STATUS;
+            `desired_acceleration` (3) the unbiased desired acceleration M(53) [m/s^2, in E];
+            `disturbance_estimate` DISTURBANCE_ESTIMATE (d_w, d_b [N, in E], m_e [kg])
+    All outputs are state, updated every `period` (100 Hz by default).
+    """
+
+    def __init__(self, vehicle: VehicleModel, so3: So3Params, gains: DisturbanceGains,
+                 limits: DisturbanceLimits, period: float, extra_state=None):
+        super().__init__()
+        self._vehicle, self._so3, self._gains, self._limits = vehicle, so3, gains, limits
+        self._curve = vehicle.curve
+        self._period = period
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self._active = self.DeclareVectorInputPort("active", 1)
+        self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
+        self._command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
+        self._status = self.DeclareDiscreteState(status_vector(ControllerReason.INACTIVE))
+        self._acceleration = self.DeclareDiscreteState(3)
+        self._estimates = self.DeclareDiscreteState(DISTURBANCE_ESTIMATE.pack(
+            d_w=np.zeros(2), d_b=np.zeros(2), m_e=vehicle.mass))
+        self._internal = self.DeclareDiscreteState(np.zeros(_INTERNAL.size))
+        self._extra = None if extra_state is None else self.DeclareDiscreteState(extra_state)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareStateOutputPort("fc_command", self._command)
+        self.DeclareStateOutputPort("controller_status", self._status)
+        self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
+        self.DeclareStateOutputPort("disturbance_estimate", self._estimates)
+
+    # --- subclass interface -------------------------------------------------------------------
+
+    def _feedback_acceleration(self, context, discrete_state, e_p, e_v, reference
+                               ) -> tuple[np.ndarray, ControllerReason, float]:
+        """a_fb [m/s^2, in E], the reason (OK, SOLVER_FALLBACK, SOLVER_FAILED), solver status."""
+        raise NotImplementedError
+
+    def _on_activation(self, context, discrete_state) -> None:
+        """Resets the subclass's own state when the controller becomes active."""
+
+    def _on_frame_change(self, context, discrete_state, R_OldNew: np.ndarray) -> None:
+        """Re-expresses the subclass's own state in the new estimator frame."""
+
+    # --- the tick -----------------------------------------------------------------------------
+
+    def _update(self, context, discrete_state):
+        start = time.perf_counter()
+        x = context.get_discrete_state(self._internal).get_value().copy()
+        if self._active.Eval(context)[0] < 0.5:
+            x[_INTERNAL.slice("was_active")] = 0.0
+            discrete_state.set_value(self._internal, x)
+            discrete_state.set_value(self._status, status_vector(ControllerReason.INACTIVE))
+            return
+        estimate = self._estimate.Eval(context)
+        reference = self._reference.Eval(context)
+        estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 \
+            and bool(np.all(np.isfinite(estimate)))
+        if x[_INTERNAL.slice("was_active")][0] < 0.5:
+            self._activate(context, discrete_state, x, estimate if estimate_ok else None)
+        if not estimate_ok:
+            return self._hold(context, discrete_state, x, ControllerReason.BAD_ESTIMATE, start)
+        if not np.all(np.isfinite(reference)):
+            return self._hold(context, discrete_state, x, ControllerReason.BAD_REFERENCE, start)
+        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
+        if counter != x[_INTERNAL.slice("frame_counter")][0]:
+            R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
+            x[_INTERNAL.slice("disturbance")] = disturbance.reexpress(
+                x[_INTERNAL.slice("disturbance")], R_OldNew)
+            x[_INTERNAL.slice("frame_counter")] = counter
+            self._on_frame_change(context, discrete_state, R_OldNew)
+        self._compute(context, discrete_state, x, estimate, reference, start)
+
+    def _activate(self, context, discrete_state, x, estimate) -> None:
+        last = self._last.Eval(context)
+        usable = command_is_usable(last)
+        armed = usable and FC_COMMAND.get(last, "arm") > 0.5
+        thrust = float(FC_COMMAND.get(last, "thrust")) if armed else 0.0
+        state = np.zeros(DISTURBANCE.size)
+        if armed and estimate is not None:
+            tilt_cos = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_EB"))[2, 2]
+            apparent = float(self._curve.apparent_mass(thrust)) * tilt_cos  # M(34)
+            if apparent > 0.5 * self._vehicle.mass:
+                state[DISTURBANCE.slice("mass_difference")] = np.clip(
+                    apparent - self._vehicle.mass, -self._limits.mass, self._limits.mass)
+        x[_INTERNAL.slice("was_active")] = 1.0
+        x[_INTERNAL.slice("ramping")] = 1.0
+        x[_INTERNAL.slice("ramp_thrust")] = thrust
+        x[_INTERNAL.slice("disturbance")] = state
+        if estimate is not None:
+            x[_INTERNAL.slice("frame_counter")] = STATE_ESTIMATE.get(estimate, "frame_counter")
+        self._on_activation(context, discrete_state)
+
+    def _compute(self, context, discrete_state, x, estimate, reference, start) -> None:
+        now = context.get_time()
+        R = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_EB"))
+        eta = heading(R)
+        e_p = STATE_ESTIMATE.get(estimate, "p_EB") - REFERENCE.get(reference, "p")
+        e_v = STATE_ESTIMATE.get(estimate, "v_EB") - REFERENCE.get(reference, "v")
+        ramping = x[_INTERNAL.slice("ramping")][0] > 0.5
+        state = x[_INTERNAL.slice("disturbance")]
+        if not ramping:
+            state = disturbance.integrate(state, e_p, eta, self._period, self._gains,
+                                          self._limits)
+        m_e = disturbance.estimated_mass(self._vehicle.mass, state)
+        d_w, d_b = disturbance.forces(state, eta)
+        a_fb, reason, solver_status = self._feedback_acceleration(
+            context, discrete_state, e_p, e_v, reference)
+        if reason not in VALID_REASONS:
+            x[_INTERNAL.slice("disturbance")] = state
+            return self._hold(context, discrete_state, x, reason, start, solver_status)
+        f_d = m_e * (a_fb + REFERENCE.get(reference, "a") + GRAVITY * E3) - (d_w + d_b)  # M(38/39)
+        f_d = limit_tilt(f_d, np.radians(self._so3.max_tilt), 0.2 * m_e * GRAVITY)
+        R_d = desired_orientation(f_d, REFERENCE.get(reference, "heading"),
+                                  self._so3.orientation == "heading_compliant")
+        omega_j = jerk_feedforward(np.linalg.norm(f_d), m_e, R_d, REFERENCE.get(reference, "j"))
+        omega_d = body_rate_command(R, R_d, self._so3, omega_j,
+                                    REFERENCE.get(reference, "heading_rate"))
+        lo, hi = self._so3.thrust_limits
+        thrust = float(np.clip(self._curve.thrust(f_d @ R[:, 2]), lo, hi))  # M(32)
+        if ramping:
+            step = self._so3.thrust_ramp_rate * self._period
+            ramp = x[_INTERNAL.slice("ramp_thrust")][0]
+            if abs(thrust - ramp) <= step:
+                x[_INTERNAL.slice("ramping")] = 0.0
+            else:
+                thrust = ramp + np.sign(thrust - ramp) * step
+            x[_INTERNAL.slice("ramp_thrust")] = thrust
+        a_d = (float(self._curve.force(thrust)) * R[:, 2] + d_w + d_b) / m_e - GRAVITY * E3
+        command = FC_COMMAND.pack(stamp=now, mode=CommandMode.RATES_THRUST,
+                                  q_WD=RotationMatrix(R_d).ToQuaternion().wxyz(), w_D=omega_d,
+                                  thrust=thrust, arm=1.0)
+        x[_INTERNAL.slice("disturbance")] = state
+        if not (np.all(np.isfinite(command)) and np.all(np.isfinite(a_d))):
+            return self._hold(context, discrete_state, x, ControllerReason.NOT_FINITE, start)
+        discrete_state.set_value(self._command, command)
+        discrete_state.set_value(self._acceleration, a_d)
+        discrete_state.set_value(self._estimates, disturbance.estimate_vector(
+            self._vehicle.mass, state, eta))
+        discrete_state.set_value(self._internal, x)
+        discrete_state.set_value(self._status, status_vector(
+            reason, time.perf_counter() - start, solver_status))
+
+    def _hold(self, context, discrete_state, x, reason, start, solver_status=0.0) -> None:
+        """A tick that cannot compute: level hover command (finite), valid = 0."""
+        previous = context.get_discrete_state(self._command).get_value()
+        eta = heading(rotation_matrix(FC_COMMAND.get(previous, "q_WD"))) \
+            if np.all(np.isfinite(previous)) else 0.0
+        m_e = disturbance.estimated_mass(self._vehicle.mass, x[_INTERNAL.slice("disturbance")])
+        arm = 1.0 if FC_COMMAND.get(previous, "arm") > 0.5 else 0.0
+        thrust = 0.0 if not arm else x[_INTERNAL.slice("ramp_thrust")][0] \
+            if x[_INTERNAL.slice("ramping")][0] > 0.5 else float(self._curve.thrust(m_e * GRAVITY))
+        discrete_state.set_value(self._command, level_command(context.get_time(), eta, thrust,
+                                                              arm))
+        discrete_state.set_value(self._acceleration, np.zeros(3))
+        discrete_state.set_value(self._internal, x)
+        discrete_state.set_value(self._status, status_vector(
+            reason, time.perf_counter() - start, solver_status))
+
+    @property
+    def period(self) -> float:
+        return self._period

@@ -1,0 +1,133 @@
+"""SO(3) force tracking M(17)-(31), the disturbance integrators M(35)-(37) and the MPC's QP
+M(40)-(51), each on its own (no simulation)."""
+import numpy as np
+import pytest
+
+from alight.systems.control import disturbance
+from alight.systems.control.disturbance import DISTURBANCE, DisturbanceGains, DisturbanceLimits
+from alight.systems.control.mpc_force import MpcForceParams, MpcForceQp, prediction
+from alight.systems.control.so3 import (So3Params, body_rate_command, desired_orientation,
+                                        heading_rate, jerk_feedforward, rotation_error,
+                                        yaw_rate_for_heading_rate)
+from alight.systems.rotations import heading
+from alight.systems.thrust_curve import GRAVITY
+
+
+def tilted_force(tilt_deg: float, azimuth_deg: float, magnitude: float = 30.0) -> np.ndarray:
+    tilt, azimuth = np.radians(tilt_deg), np.radians(azimuth_deg)
+    return magnitude * np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth),
+                                 np.cos(tilt)])
+
+
+@pytest.mark.parametrize("azimuth", [30.0, 45.0, 60.0, 120.0])
+def test_heading_compliant_orientation_keeps_heading_at_30_degrees_tilt(azimuth):
+    """M(21)-(23) give exactly the commanded heading; M(18)-(19) miss it by degrees when the
+    force tilts away from the heading direction (M Sec. 5.1)."""
+    f_d = tilted_force(30.0, azimuth)
+    eta_d = 0.0
+    R_new = desired_orientation(f_d, eta_d, heading_compliant=True)
+    R_old = desired_orientation(f_d, eta_d, heading_compliant=False)
+    for R in (R_new, R_old):
+        np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(R[:, 2], f_d / np.linalg.norm(f_d), atol=1e-12)
+    assert abs(np.degrees(heading(R_new) - eta_d)) < 1e-9
+    error_old = abs(np.degrees(heading(R_old) - eta_d))
+    # At 30 deg tilt toward 45 deg azimuth M(18)-(19) is 4.1 deg off heading.
+    assert error_old > 1.5, error_old
+
+
+def test_rotation_error_and_rate_command_turn_toward_desired():
+    R_d = desired_orientation(tilted_force(20.0, 10.0), 0.3)
+    np.testing.assert_allclose(rotation_error(R_d, R_d), 0.0, atol=1e-12)
+    params = So3Params()
+    R = desired_orientation(tilted_force(0.0, 0.0), 0.3)  # level, same heading
+    omega = body_rate_command(R, R_d, params, np.zeros(3), 0.0)
+    # Integrating the commanded rates briefly reduces the attitude error.
+    from scipy.linalg import expm
+    hat = lambda w: np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    R_next = R @ expm(hat(omega) * 0.02)
+    assert np.linalg.norm(rotation_error(R_d, R_next)) < np.linalg.norm(rotation_error(R_d, R))
+    assert np.all(np.abs(omega) <= np.asarray(params.max_rate) + 1e-12)
+
+
+def test_jerk_feedforward_matches_finite_differences_of_desired_orientation():
+    """M(26): along a reference with jerk, omega_j is the rate at which R_d's b3 turns."""
+    m_e = 2.5
+    t = np.linspace(0.0, 1.0, 1001)
+    dt = t[1] - t[0]
+    # a(t) = [2 sin(3t), cos(2t), 0.5 t]; jerk = derivative.
+    acc = np.column_stack([2 * np.sin(3 * t), np.cos(2 * t), 0.5 * t])
+    jerk = np.column_stack([6 * np.cos(3 * t), -2 * np.sin(2 * t), 0.5 * np.ones_like(t)])
+    i = 500
+    f = lambda k: m_e * (acc[k] + GRAVITY * np.array([0, 0, 1.0]))
+    R_d = desired_orientation(f(i), 0.2)
+    b3_dot = (f(i + 1) / np.linalg.norm(f(i + 1)) - f(i - 1) / np.linalg.norm(f(i - 1))) / (2 * dt)
+    omega_j = jerk_feedforward(np.linalg.norm(f(i)), m_e, R_d, jerk[i])
+    # d b3/dt = R_d (omega x e3).
+    np.testing.assert_allclose(R_d @ np.cross(omega_j, [0, 0, 1.0]), b3_dot, atol=1e-4)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 25.0, 45.0])
+def test_heading_rate_feedforward_and_parasitic_compensation(tilt):
+    """M(27)-(31) realize the reference heading rate, and the M Sec. 5.3 compensation cancels the
+    heading rate that the tilt correction would add: the resulting heading rate M(15) is the
+    reference's (the heading feedback k_R[2] is off here to isolate the feedforward)."""
+    R = desired_orientation(tilted_force(tilt, 70.0), 0.4)
+    eta_rate = 0.8
+    w3 = yaw_rate_for_heading_rate(R, eta_rate)
+    assert heading_rate(R, np.array([0.0, 0.0, w3])) == pytest.approx(eta_rate, rel=1e-9)
+    R_d = desired_orientation(tilted_force(tilt + 10.0, 100.0), 0.4)
+    params = So3Params(k_R=[6.0, 6.0, 0.0], max_rate=[6.0, 6.0, 6.0])
+    omega = body_rate_command(R, R_d, params, np.zeros(3), eta_rate)
+    assert heading_rate(R, omega) == pytest.approx(eta_rate, abs=1e-9)
+    if tilt > 0.0:  # without the compensation the tilt correction turns the heading
+        uncompensated = omega.copy()
+        uncompensated[2] = w3
+        assert abs(heading_rate(R, uncompensated) - eta_rate) > 0.05
+
+
+def test_disturbance_integrators_rotate_with_heading_and_clamp():
+    gains, limits = DisturbanceGains(world=[1.0, 1.0], body=[2.0, 2.0], mass=0.5), \
+        DisturbanceLimits(world=1.0, body=10.0, mass=0.3)
+    state = np.zeros(DISTURBANCE.size)
+    eta = np.pi / 2
+    for _ in range(100):   # 1 s of a 0.5 m error along +x, 0.2 m below the reference
+        state = disturbance.integrate(state, np.array([0.5, 0.0, -0.2]), eta, 0.01, gains, limits)
+    d_w, d_b = disturbance.forces(state, eta)
+    np.testing.assert_allclose(d_w, [0.5, 0.0, 0.0], atol=1e-9)
+    # Body sum: the error in the heading frame is along -y_H; rotated back it is along +x in W.
+    np.testing.assert_allclose(d_b, [1.0, 0.0, 0.0], atol=1e-9)
+    assert disturbance.estimated_mass(2.5, state) == pytest.approx(2.6)  # sagging: heavier
+    for _ in range(1000):  # anti-windup
+        state = disturbance.integrate(state, np.array([0.5, 0.0, -0.2]), eta, 0.01, gains, limits)
+    assert disturbance.forces(state, eta)[0][0] == pytest.approx(1.0)
+    assert disturbance.estimated_mass(2.5, state) == pytest.approx(2.8)
+
+
+def test_mpc_prediction_matches_simulated_model():
+    dt, n = 0.05, 6
+    Phi, Gamma = prediction(dt, n)
+    x0, u = np.array([1.0, -0.5, 0.3]), np.linspace(-1, 1, n)
+    x = x0.copy()
+    A = np.array([[1.0, dt, dt * dt / 2], [0.0, 1.0, dt], [0.0, 0.0, 0.0]])
+    for i in range(n):
+        x = A @ x + np.array([0, 0, 1.0]) * u[i]
+        np.testing.assert_allclose((Phi @ x0 + Gamma @ u)[3 * i:3 * i + 3], x, atol=1e-12)
+
+
+@pytest.mark.parametrize("solver", ["clarabel", "osqp"])
+def test_mpc_qp_respects_speed_acceleration_and_jerk_bounds_after_a_5_m_error(solver):
+    """M(46)-(51): a 5 m position error (an estimator jump) gives a plan within 2 m/s, 2 m/s^2
+    and 5 m/s^3 that heads back toward the reference."""
+    p = MpcForceParams(solver=solver)
+    qp = MpcForceQp(p, control_period=0.01)
+    x0 = qp.initial_state(np.array([5.0, 0.0, 0.0]), np.zeros(3), np.zeros(3))
+    ok, u, _ = qp.solve(x0, np.zeros(3))
+    assert ok
+    assert u[0, 0] < 0.0                             # accelerates back toward the reference
+    assert np.all(np.abs(u) <= 2.0 + 1e-4)
+    assert np.all(np.abs(np.diff(u, axis=1)) <= 5.0 * p.model_period + 1e-4)
+    assert abs(u[0, 0]) <= 5.0 * 0.01 + 1e-4         # first step slew against u_prev = 0
+    states = (qp.Phi @ x0[0] + qp.Gamma @ u[0]).reshape(-1, 3)
+    assert np.all(np.abs(states[:, 1]) <= 2.0 + 1e-3)  # soft speed bound held
+    np.testing.assert_allclose(u[1:], 0.0, atol=1e-4)   # y, z: no error, no action
