@@ -104,12 +104,14 @@ class HilResult:
 
 def run_hil(connect: str, mission: str, options: MissionOptions, params: MavlinkVehicleParams,
             duration: float | None = None, seed: int = 0, run_dir=None,
-            frame_address: str | None = None, wait: float = 10.0) -> HilResult:
+            frame_address: str | None = None, wait: float = 10.0,
+            realtime_rate: float = 1.0) -> HilResult:
     """Connects, waits for the autopilot (heartbeat and TIMESYNC), asks for the telemetry rates,
-    flies `mission` in real time and writes the run folder."""
+    flies `mission` in real time and writes the run folder. `realtime_rate` below 1 only
+    against a simulated autopilot slowed to the same rate."""
     from alight.diagrams.hover import default_run_dir
     check_mission(mission)
-    clock = WallClock()
+    clock = WallClock(realtime_rate)
     link = MavlinkLink.open(connect, params.link, clock)
     frames = FrameSubscriber(frame_address) if frame_address else None
     try:
@@ -129,7 +131,7 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
         write_run_folder(run_dir, loggers, simulator.get_context(), {
             "command": "hil", "mission": mission, "connect": connect, "seed": seed,
             "duration": simulator.get_context().get_time(), "vehicle": params,
-            "profile": options.profile, "message_rates": rates,
+            "profile": options.profile, "message_rates": rates, "realtime_rate": realtime_rate,
             "realtime": dc.asdict(report), "link": dc.asdict(link.counters_snapshot()),
             "arming_errors": sender.last_error})
         return HilResult(report, run_dir, rates)

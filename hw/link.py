@@ -181,7 +181,7 @@ class MavlinkLink(MavlinkEndpoint):
         super().close()
 
     def clock_ns(self) -> int:
-        return time.monotonic_ns()
+        return self.clock.scaled_ns()
 
     # --- keep-alive: heartbeat and TIMESYNC requests --------------------------------------------
     def _keepalive_loop(self):
@@ -194,7 +194,7 @@ class MavlinkLink(MavlinkEndpoint):
                     mavlink.MAV_STATE_ACTIVE))
                 next_heartbeat = now + self.params.heartbeat_period
             if now >= next_sync:
-                ts1 = time.monotonic_ns()
+                ts1 = self.clock.scaled_ns()
                 self.timesync.request(ts1)
                 self.send(self.mav.timesync_encode(0, ts1))
                 # Faster until locked, so the IMU can flow soon after the link opens.
@@ -296,7 +296,7 @@ class MavlinkLink(MavlinkEndpoint):
         return True
 
     def _timesync_reply(self, message, now: float) -> None:
-        if not self.timesync.reply(message.tc1, message.ts1, time.monotonic_ns()):
+        if not self.timesync.reply(message.tc1, message.ts1, self.clock.scaled_ns()):
             with self._counter_lock:
                 self.counters.rejected += 1
 
@@ -323,7 +323,7 @@ class MavlinkLink(MavlinkEndpoint):
         offset = self.timesync.offset_ns
         if offset is None:
             return math.nan
-        return self.clock.from_monotonic(t_fc - offset * 1e-9)
+        return self.clock.from_scaled(t_fc - offset * 1e-9)
 
     # --- commands --------------------------------------------------------------------------
     def command(self, command: int, *params: float, timeout: float | None = None) -> int:

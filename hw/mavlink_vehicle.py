@@ -15,6 +15,7 @@ over MAVLink (hw/link.py), plus the hardware-only `link_status` diagnostics.
 import dataclasses as dc
 import math
 import threading
+import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -245,7 +246,7 @@ class MavlinkTelemetry(LeafSystem):
                 CommandMode.RATES_THRUST else ActiveMode.ATTITUDE_THRUST
         else:  # armed, flying on its own (AUTO.LAND, failsafe): not following our commands
             mode = ActiveMode.FAILSAFE_DESCENT
-        monotonic = link.clock.epoch + link.clock.now()
+        monotonic = time.monotonic()
         status = FC_STATUS.pack(
             stamp=now, armed=float(state.armed), mode=mode,
             link_alive=float(link.link_alive(monotonic)),

@@ -17,20 +17,33 @@ LOG = logging.getLogger("alight.hw")
 
 
 class WallClock:
-    """Onboard time: seconds of `time.monotonic()` since `restart()`. The runner restarts it when
-    the simulation starts, so that context time and this clock agree while the run keeps up."""
+    """Onboard time: seconds of `time.monotonic()` since `restart()`, times `rate` (1 on a vehicle;
+    below 1 runs a whole HIL setup slowed down, on a machine too loaded for real time). The runner
+    restarts it when the simulation starts, so that context time and this clock agree while the
+    run keeps up. `scaled_ns()` runs at the same rate without the epoch (TIMESYNC uses it, so a
+    restart does not invalidate the clock offset)."""
 
-    def __init__(self):
+    def __init__(self, rate: float = 1.0):
+        if not (math.isfinite(rate) and 0.0 < rate <= 1.0):
+            raise ValueError(f"real-time rate must be in (0, 1], not {rate}")
+        self.rate = float(rate)
         self.epoch = time.monotonic()
 
     def restart(self) -> None:
         self.epoch = time.monotonic()
 
     def now(self) -> float:
-        return time.monotonic() - self.epoch
+        return (time.monotonic() - self.epoch) * self.rate
 
     def from_monotonic(self, t_monotonic: float) -> float:
-        return t_monotonic - self.epoch
+        return (t_monotonic - self.epoch) * self.rate
+
+    def scaled_ns(self) -> int:
+        return int(time.monotonic_ns() * self.rate)
+
+    def from_scaled(self, t_scaled: float) -> float:
+        """A `scaled_ns() * 1e-9` time as onboard time."""
+        return t_scaled - self.epoch * self.rate
 
 
 @dc.dataclass
@@ -65,7 +78,8 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
                  safe_stop: Callable[[], str] | None = None, tick: float = 0.01,
                  overrun_tolerance: float = 0.02, simulator: Simulator | None = None
                  ) -> tuple[Simulator, RealtimeReport]:
-    """Runs `diagram` in real time until `duration` (None: until Ctrl-C / SIGTERM).
+    """Runs `diagram` in real time (at `clock.rate`) until `duration` (None: until Ctrl-C /
+    SIGTERM).
 
     Each `tick` of diagram time is one `AdvanceTo`; a tick that ends more than
     `overrun_tolerance` behind the wall clock is an overrun (logged, counted). Whatever ends the
@@ -74,7 +88,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     simulator = simulator or Simulator(diagram)
     context = simulator.get_mutable_context()
     diagram.SetRandomContext(context, RandomGenerator(seed))
-    simulator.set_target_realtime_rate(1.0)
+    simulator.set_target_realtime_rate(clock.rate)
     previous = _install_sigterm()
     ticks = overruns = 0
     max_lag = 0.0

@@ -56,7 +56,7 @@ class SimAutopilotParams:
     """models/sim_autopilot.yaml."""
     system_id: int = bounded(1, 1, 255)
     component_id: int = bounded(1, 1, 255)        # MAV_COMP_ID_AUTOPILOT1
-    period: float = bounded(0.001, 0.0005, 0.05, "s")  # bridge tick: link <-> simulation
+    period: float = bounded(0.002, 0.0005, 0.05, "s")  # bridge tick: link <-> simulation
     heartbeat_period: float = bounded(1.0, 0.1, 10.0, "s")
     highres_imu_rate: float = bounded(STREAMS["HIGHRES_IMU"], 0.0, 4000.0, "Hz")  # 0: off
     scaled_imu_rate: float = bounded(STREAMS["SCALED_IMU"], 0.0, 4000.0, "Hz")
@@ -75,10 +75,11 @@ def load_sim_autopilot_params(filename: str = "sim_autopilot.yaml") -> SimAutopi
 
 class SimClock:
     """The autopilot's clock (the simulation's time) as seen from other threads: the time of the
-    last bridge tick plus the wall time since (the simulation runs at real-time rate 1)."""
+    last bridge tick plus the wall time since, times the real-time rate (1 unless slowed)."""
 
-    def __init__(self):
+    def __init__(self, rate: float = 1.0):
         self._t, self._wall = 0.0, time.monotonic()
+        self._rate = rate
         self._lock = threading.Lock()
 
     def tick(self, t: float) -> None:
@@ -87,7 +88,7 @@ class SimClock:
 
     def now(self) -> float:
         with self._lock:
-            return self._t + (time.monotonic() - self._wall)
+            return self._t + (time.monotonic() - self._wall) * self._rate
 
 
 @dc.dataclass
@@ -206,7 +207,7 @@ class AutopilotBridge(LeafSystem):
         self._frame_stamps = {name: -math.inf for name in self._cameras}
 
     def _update(self, context, discrete_state):
-        """Cheap when nothing is due: this runs every `period` (1 ms) in real time."""
+        """Cheap when nothing is due: this runs every `period` (2 ms) in real time."""
         now = context.get_time()
         self._endpoint.clock.tick(now)
         received = not self._endpoint.inbox.empty()
@@ -397,14 +398,17 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
 def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
                       duration: float | None = None, seed: int = 0, run_dir=None,
                       frame_address: str | None = None, stats_file=None, meshcat=None,
-                      record=None, ready=None):
+                      record=None, ready=None, realtime_rate: float = 1.0):
     """Serves the simulated vehicle on `listen` in real time until `duration` or Ctrl-C/SIGTERM;
-    writes the run folder (with ground truth) and, if asked, the link statistics (JSON)."""
+    writes the run folder (with ground truth) and, if asked, the link statistics (JSON).
+    `realtime_rate` below 1 slows the simulation (and the autopilot's clock) for a loaded machine;
+    the companion must run at the same rate (`alight hil --realtime-rate`)."""
     from alight.diagrams.hover import default_run_dir
     from alight.diagrams.run_log import write_run_folder
     from alight.diagrams.visualization import start_recording, write_recording
     from alight.hw.realtime import WallClock, run_realtime
-    clock = SimClock()
+    wall_clock = WallClock(realtime_rate)  # checks the rate before anything opens
+    clock = SimClock(realtime_rate)
     endpoint = AutopilotEndpoint.open(listen, params, clock)
     frames = FramePublisher(frame_address) if frame_address else None
     try:
@@ -413,7 +417,7 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
             start_recording(meshcat)
         if ready is not None:
             ready()
-        simulator, report = run_realtime(diagram, duration, WallClock(), seed=seed,
+        simulator, report = run_realtime(diagram, duration, wall_clock, seed=seed,
                                          safe_stop=lambda: "simulated vehicle: stops with the "
                                                            "process")
         if meshcat is not None and record is not None:
@@ -426,7 +430,7 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
     write_run_folder(run_dir, loggers, simulator.get_context(), {
         "command": "sim-autopilot", "seed": seed, "listen": listen,
         "duration": simulator.get_context().get_time(), "config": vehicle_config,
-        "autopilot": params, "realtime": dc.asdict(report)})
+        "autopilot": params, "realtime_rate": realtime_rate, "realtime": dc.asdict(report)})
     statistics = {"realtime": dc.asdict(report), "link": dc.asdict(endpoint.counters_snapshot()),
                   **endpoint.statistics.summary()}
     if stats_file is not None:
