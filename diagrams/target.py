@@ -152,7 +152,7 @@ class DownCameraRig:
         self._diagram = builder.Build()
         self._context = self._diagram.CreateDefaultContext()
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
-        self._X_BC = camera.X_BC()
+        self.X_BC = camera.X_BC()
         instance = self.scene.vehicle.instance
         self._joints = [plant.GetJointByName(n, instance) for n in ("x", "y", "heading")]
 
@@ -167,7 +167,7 @@ class DownCameraRig:
         return self._plant.EvalBodyPoseInWorld(self._plant_context, self.scene.vehicle.platform)
 
     def X_CT(self) -> RigidTransform:
-        X_WC = self._plant.EvalBodyPoseInWorld(self._plant_context, self._body) @ self._X_BC
+        X_WC = self._plant.EvalBodyPoseInWorld(self._plant_context, self._body) @ self.X_BC
         return X_WC.inverse() @ self.X_WT()
 
     def render(self, X_WB: RigidTransform, target_xy_heading=(0.0, 0.0, 0.0),

@@ -115,14 +115,15 @@ class PatternDetector:
                 for corners in self._quads(smoothed, binary, valid)]
 
     def detect(self, smoothed: np.ndarray, binary: np.ndarray, valid: np.ndarray, K: np.ndarray,
-               R_CT_reference: np.ndarray | None = None) -> list[Detection]:
+               R_CT_reference: np.ndarray | None = None,
+               z_up_C: np.ndarray | None = None) -> list[Detection]:
         """Verified detections, best first; nested duplicates (the same pattern's inner and outer
-        quads) are merged."""
+        quads) are merged. `R_CT_reference`, `z_up_C`: see `pose`."""
         detections = []
         for candidate in self.candidates(smoothed, binary, valid):
             if not self._accepted(candidate):
                 continue
-            X_CT = self.pose(candidate.corners, K, R_CT_reference)
+            X_CT = self.pose(candidate.corners, K, R_CT_reference, z_up_C=z_up_C)
             if X_CT is None:
                 continue
             score = candidate.correlation if self._params.verification == "ncc" \
@@ -207,24 +208,34 @@ class PatternDetector:
         return descriptors if keypoints else None
 
     def pose(self, corners: np.ndarray, K: np.ndarray, R_CT_reference: np.ndarray | None = None,
-             symmetric: bool = True) -> RigidTransform | None:
-        """X_CT from the four corners (rectified pixels, no distortion). With `symmetric` (corners
-        known only up to a cyclic shift), the 90-degree rotation of the pattern closest to
-        `R_CT_reference` (default: T's x along the image's up); otherwise the corners are
-        keypoints 0-3 in order."""
+             symmetric: bool = True, z_up_C: np.ndarray | None = None) -> RigidTransform | None:
+        """X_CT from the four corners (rectified pixels, no distortion). A planar square has two
+        pose solutions (the plane tilted either way; `cv2.solvePnPGeneric`): the one whose normal
+        z_T is closest to `z_up_C` (the world's up in the camera frame: the platform is level) or
+        to the reference's z is kept, else the one with the smaller reprojection error. With
+        `symmetric` (corners known only up to a cyclic shift), the 90-degree rotation of the
+        pattern closest to `R_CT_reference` (default: T's x along the image's up); otherwise the
+        corners are keypoints 0-3 in order."""
         method = cv2.SOLVEPNP_IPPE if self._params.pnp == "ippe" else cv2.SOLVEPNP_P3P
-        ok, rvec, tvec = cv2.solvePnP(self._pattern.corners, corners.astype(np.float64), K, None,
-                                      flags=method)
-        if not ok or not np.all(np.isfinite(tvec)) or tvec[2, 0] <= 0:
+        count, rvecs, tvecs, errors = cv2.solvePnPGeneric(
+            self._pattern.corners, corners.astype(np.float64), K, None, flags=method)
+        solutions = [(cv2.Rodrigues(r)[0], t.ravel(), float(e)) for r, t, e in
+                     zip(rvecs, tvecs, np.ravel(errors)) if np.all(np.isfinite(t)) and t[2] > 0]
+        if not solutions:
             return None
-        R_CT = cv2.Rodrigues(rvec)[0]
+        if z_up_C is None and R_CT_reference is not None:
+            z_up_C = R_CT_reference[:, 2]
+        if z_up_C is not None:
+            R_CT, p_CT, _ = max(solutions, key=lambda s: s[0][:, 2] @ z_up_C)
+        else:
+            R_CT, p_CT, _ = min(solutions, key=lambda s: s[2])
         if not symmetric:
-            return RigidTransform(RotationMatrix(R_CT), tvec.ravel())
+            return RigidTransform(RotationMatrix(R_CT), p_CT)
         if R_CT_reference is None:
             R_CT_reference = _image_up_reference(R_CT)
         best = max(range(4), key=lambda k: np.trace(
             R_CT_reference.T @ R_CT @ _rz(k * np.pi / 2)))
-        return RigidTransform(RotationMatrix(R_CT @ _rz(best * np.pi / 2)), tvec.ravel())
+        return RigidTransform(RotationMatrix(R_CT @ _rz(best * np.pi / 2)), p_CT)
 
     def _rotate_corners(self, corners, X_CT, K) -> np.ndarray:
         """The corners reordered to match keypoints 0-3 under the chosen rotation."""

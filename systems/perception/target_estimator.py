@@ -174,7 +174,8 @@ class TargetEstimator(LeafSystem):
         if accepted < p.min_tracked_keypoints:
             reference = (X_WC.inverse() @ _X_WT(ekf)).rotation().matrix() \
                 if ekf.initialized else None
-            detection = self._detect(frame, images, lens, reference)
+            z_up_C = X_WC.rotation().inverse().multiply(np.array([0.0, 0.0, 1.0]))
+            detection = self._detect(frame, images, lens, reference, z_up_C)
             if detection is not None:
                 status[PERCEPTION_STATUS.slice("detections")] += 1
                 detected = 1
@@ -214,18 +215,19 @@ class TargetEstimator(LeafSystem):
         uv = lens.rectify_points(frame.keypoints)
         return list(zip((int(i) for i in frame.keypoint_ids), uv))
 
-    def _detect(self, frame, images, lens, R_CT_reference):
-        """(X_CT, corners in rectified pixels in keypoint order) of the best detection, or None."""
+    def _detect(self, frame, images, lens, R_CT_reference, z_up_C):
+        """(X_CT, corners in rectified pixels in keypoint order) of the best detection, or None.
+        `z_up_C`: the state estimate's up in the camera frame (the platform is level)."""
         if images is not None:
             smoothed, binary, valid = images
             detections = self._detector.detect(smoothed, binary, valid, lens.K_rectified,
-                                               R_CT_reference)
+                                               R_CT_reference, z_up_C)
             return (detections[0].X_CT, detections[0].corners) if detections else None
         ids = list(frame.keypoint_ids)
         if not all(i in ids for i in CORNER_IDS):
             return None
         corners = lens.rectify_points(frame.keypoints[[ids.index(i) for i in CORNER_IDS]])
-        X_CT = self._detector.pose(corners, lens.K_rectified, symmetric=False)
+        X_CT = self._detector.pose(corners, lens.K_rectified, symmetric=False, z_up_C=z_up_C)
         return None if X_CT is None else (X_CT, corners)
 
     def _fuse(self, ekf: TargetEkf, measurements, X_WC: RigidTransform, K) -> tuple[int, int]:
