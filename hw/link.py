@@ -290,6 +290,7 @@ class MavlinkLink(MavlinkEndpoint):
     def _on_statustext(self, message, now) -> bool:
         text = message.text.decode("utf-8", "replace") if isinstance(message.text, bytes) \
             else str(message.text)
+        text = "".join(c if c.isprintable() else "?" for c in text.strip("\x00"))
         self.status_texts.append((now, message.severity, text.strip("\x00").strip()))
         if message.severity <= mavlink.MAV_SEVERITY_WARNING:
             LOG.warning("flight controller: %s", text)
