@@ -157,8 +157,7 @@ class AutopilotRules:
             if self.mode == FlightMode.LAND and airborne:
                 return Answer(TEMPORARILY_REJECTED, "Landing: Offboard not available")
             if not self.stream_fresh(now):
-                return Answer(TEMPORARILY_REJECTED,
-                              "Switching to Offboard is currently not available: no setpoints")
+                return Answer(TEMPORARILY_REJECTED, "Offboard not available: no setpoints")
             if self.mode != FlightMode.OFFBOARD:
                 self.setpoint_stamp = now  # forwarded from now on, never older than the last
             self.mode = FlightMode.OFFBOARD
@@ -173,7 +172,7 @@ class AutopilotRules:
                 return Answer(TEMPORARILY_REJECTED, "Hold not available: no position estimate")
             self.mode = FlightMode.HOLD
             return Answer(ACCEPTED)
-        return Answer(DENIED, f"Mode {px4.mode_name(mode)} not available (no RC, no position)")
+        return Answer(DENIED, f"{px4.mode_name(mode)} not available: no RC/position")
 
     # --- every tick --------------------------------------------------------------------------
     def fc_command(self, now: float, fc_status: np.ndarray, fc_attitude: np.ndarray

@@ -201,6 +201,7 @@ class AutopilotBridge(LeafSystem):
         self._next_send = {name: 0.0 for name in STREAMS}
         self._one_shots: set[str] = set()
         self._next_heartbeat = self._next_command = self._next_imu = 0.0
+        self._last_heartbeat = None
         self._next_frames = 0.0
         self._last_imu_seq = -1
         self._last_imu_sent = {"HIGHRES_IMU": -math.inf, "SCALED_IMU": -math.inf}
@@ -217,6 +218,8 @@ class AutopilotBridge(LeafSystem):
                 self._handle_inbox(now, status)
             discrete_state.set_value(self._command, self._rules.fc_command(
                 now, status, self._attitude.Eval(context)))
+            if self._rules.heartbeat(status) != self._last_heartbeat:
+                self._next_heartbeat = now  # armed or mode changed: tell the client at once
             self._next_command = now + self._command_period - 1e-9
         self._send_telemetry(context, now)
         if self._frames is not None and now >= self._next_frames:
@@ -280,8 +283,8 @@ class AutopilotBridge(LeafSystem):
     def _send_telemetry(self, context, now):
         endpoint, mav = self._endpoint, self._endpoint.mav
         if now >= self._next_heartbeat:
-            base_mode, custom_mode, system_status = self._rules.heartbeat(
-                self._status.Eval(context))
+            self._last_heartbeat = self._rules.heartbeat(self._status.Eval(context))
+            base_mode, custom_mode, system_status = self._last_heartbeat
             endpoint.send(mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
                                                mavlink.MAV_AUTOPILOT_PX4, base_mode, custom_mode,
                                                system_status))

@@ -1,6 +1,10 @@
-"""A scripted PX4 stand-in for the MAVLink tests: the real autopilot endpoint (hw/sim_autopilot.py)
-with hand-driven telemetry and scripted command answers instead of a simulated vehicle."""
+"""Helpers of the MAVLink tests: a scripted PX4 stand-in (the real autopilot endpoint of
+hw/sim_autopilot.py with hand-driven telemetry and scripted command answers instead of a simulated
+vehicle), and `alight sim-autopilot` run as a separate process."""
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -109,3 +113,45 @@ class FakeAutopilot:
         self._thread.join(timeout=2)
         if self.alive:
             self.endpoint.close()
+
+
+class SimAutopilotProcess:
+    """`alight sim-autopilot` in its own process on a free UDP port (no camera channel); `stop()`
+    sends Ctrl-C (SIGINT) and waits for the run folder."""
+
+    def __init__(self, run_dir, duration: float = 120.0, realtime_rate: float = 1.0,
+                 ready_timeout: float = 60.0):
+        self.port = free_udp_port()
+        self.run_dir = run_dir
+        self.stats = run_dir.parent / f"{run_dir.name}-stats.json"
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "alight.diagrams.cli", "sim-autopilot",
+             "--listen", f"udp:127.0.0.1:{self.port}", "--duration", str(duration),
+             "--frames", "none", "--run-dir", str(run_dir), "--stats", str(self.stats),
+             "--realtime-rate", str(realtime_rate)],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.output: list[str] = []
+        self._ready = threading.Event()
+        threading.Thread(target=self._read, daemon=True).start()
+        if not self._ready.wait(ready_timeout):
+            self.stop()
+            raise RuntimeError("sim-autopilot did not start:\n" + "".join(self.output))
+
+    @property
+    def url(self) -> str:
+        return f"udp:127.0.0.1:{self.port}"
+
+    def _read(self):
+        for line in self.process.stdout:
+            self.output.append(line)
+            if line.startswith("sim-autopilot: ready"):
+                self._ready.set()
+
+    def stop(self, timeout: float = 60.0) -> int:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+        try:
+            return self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            return self.process.wait()
