@@ -5,6 +5,10 @@ import sys
 COMMANDS = {
     "hover": "arm, take off on a scripted attitude/thrust profile, hover, land (no position "
              "controller)",
+    "fly": "take off, visit waypoints with the landing paper's linear MPC, land",
+    "sysid": "identify the linear model L(11)-(12) from excitation flights or a PX4 log",
+    "sim-autopilot": "serve the simulated vehicle in real time as a PX4 autopilot over MAVLink",
+    "hil": "fly the onboard diagram against a MAVLink flight controller (real or simulated)",
 }
 
 
@@ -58,17 +62,161 @@ def _keep_meshcat_open(args) -> None:
         input("Meshcat stays up for browsing the scene; press Enter to exit. ")
 
 
+def _fly(args) -> int:
+    from alight.diagrams.fly import fly_waypoints, parse_waypoints
+    from alight.diagrams.simulation import make_meshcat
+    try:
+        waypoints = parse_waypoints(args.waypoints)
+    except ValueError as e:
+        print(f"alight fly: {e}", file=sys.stderr)
+        return 2
+    config = _vehicle_config(args)
+    meshcat = make_meshcat(args.meshcat, args.record)
+    run = fly_waypoints(config, waypoints, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
+                        record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
+    from alight.diagrams.fly import summarize_flight
+    print("\n".join(summarize_flight(run)))
+    _keep_meshcat_open(args)
+    return 0
+
+
+def _sysid(args) -> int:
+    from pathlib import Path
+    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.sysid import identify_from_ulog, run_sysid
+    from alight.systems.control.identification import IdentificationError
+    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("sysid", args.seed)
+    try:
+        if args.ulog:
+            report = identify_from_ulog(Path(args.ulog), plot=run_dir / "ulog_validation.png")
+        else:
+            report = run_sysid(_vehicle_config(args), seed=args.seed, run_dir=run_dir,
+                               output=args.output)
+    except IdentificationError as e:
+        print(f"alight sysid: cannot identify: {e}", file=sys.stderr)
+        return 2
+    print("\n".join(report.lines()))
+    print(f"plot and flights in {run_dir}" + (f"; model written to {args.output}"
+                                             if args.output and not args.ulog else ""))
+    return 0
+
+
+def _frame_address(value: str | None, url: str) -> str | None:
+    """--frames: 'none', a socket path, or by default one derived from the MAVLink port."""
+    from alight.hw.frame_channel import default_frame_address
+    if value == "none" or (value is None and url.startswith("serial:")):
+        return None
+    return value or default_frame_address(url.rsplit(":", 1)[-1])
+
+
+def _sim_autopilot(args) -> int:
+    import logging
+    from alight.diagrams.simulation import make_meshcat
+    from alight.hw.connection import MavlinkConnectionError
+    from alight.hw.sim_autopilot import load_sim_autopilot_params, run_sim_autopilot
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    config = _vehicle_config(args)
+    params = load_sim_autopilot_params(args.autopilot)
+    frames = _frame_address(args.frames, args.listen)
+    meshcat = make_meshcat(args.meshcat, args.record)
+    try:
+        report, run_dir, stats = run_sim_autopilot(
+            args.listen, config, params, duration=args.duration, seed=args.seed,
+            run_dir=args.run_dir, frame_address=frames, stats_file=args.stats, meshcat=meshcat,
+            record=args.record, realtime_rate=args.realtime_rate, ready=lambda: print(
+                f"sim-autopilot: ready on {args.listen}" + (f", camera frames on {frames}"
+                                                            if frames else ""), flush=True))
+    except (MavlinkConnectionError, ValueError) as e:
+        print(f"alight sim-autopilot: {e}", file=sys.stderr)
+        return 2
+    print("\n".join(report.lines() + [f"run folder        {run_dir}"]))
+    return 0
+
+
+def _hil(args) -> int:
+    import logging
+    from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+    from alight.hw.connection import MavlinkConnectionError
+    from alight.hw.hil import MissionOptions, MissionUnavailable, run_hil
+    from alight.hw.link import LinkTimeout
+    from alight.hw.mavlink_vehicle import load_mavlink_vehicle_params
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    params = load_mavlink_vehicle_params(args.link_config)
+    options = MissionOptions(vehicle_config=load_sim_vehicle_config(args.config),
+                             profile=args.profile)
+    try:
+        result = run_hil(args.connect, args.mission, options, params, duration=args.duration,
+                         seed=args.seed, run_dir=args.run_dir,
+                         frame_address=_frame_address(args.frames, args.connect),
+                         wait=args.wait, realtime_rate=args.realtime_rate)
+    except (MavlinkConnectionError, LinkTimeout, MissionUnavailable, ValueError) as e:
+        print(f"alight hil: {e}", file=sys.stderr)
+        return 2
+    print("\n".join(result.lines()))
+    return 1 if result.report.error else 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="alight", description="GPS-free multirotor autonomy as Drake diagrams.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="commands:\n" + "\n".join(f"  {name:10s}{text}" for name, text in COMMANDS.items()))
+        epilog="commands:\n" + "\n".join(f"  {name:15s}{text}" for name, text in COMMANDS.items()))
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     hover = sub.add_parser("hover", help=COMMANDS["hover"], description=COMMANDS["hover"])
     _add_common(hover)
     hover.add_argument("--profile", default="hover_profile.yaml",
                        help="pilot profile YAML (a path, or a file name in models/)")
     hover.set_defaults(run=_hover)
+    fly = sub.add_parser("fly", help=COMMANDS["fly"], description=COMMANDS["fly"])
+    _add_common(fly)
+    fly.add_argument("--waypoints", required=True, metavar="'X,Y,Z; X,Y,Z; ...'",
+                     help="waypoints in W [m], e.g. '0,0,5; 10,0,5; 10,10,3'")
+    fly.set_defaults(run=_fly)
+    sysid = sub.add_parser("sysid", help=COMMANDS["sysid"], description=COMMANDS["sysid"])
+    _add_common(sysid)
+    sysid.add_argument("--ulog", metavar="FILE.ulg",
+                       help="identify the attitude model L(12) from a PX4 log instead")
+    sysid.add_argument("--output", metavar="FILE.yaml",
+                       help="write the identified model (the MPC reads models/linear_model.yaml)")
+    sysid.set_defaults(run=_sysid)
+    autopilot = sub.add_parser("sim-autopilot", help=COMMANDS["sim-autopilot"],
+                               description=COMMANDS["sim-autopilot"])
+    _add_common(autopilot)
+    autopilot.add_argument("--listen", default="udp:127.0.0.1:14540",
+                           help="MAVLink endpoint (udp:HOST:PORT binds it; see docs/hardware.md)")
+    autopilot.add_argument("--autopilot", default="sim_autopilot.yaml",
+                           help="MAVLink endpoint YAML (a path, or a file name in models/)")
+    autopilot.add_argument("--duration", type=float, metavar="S",
+                           help="stop after S seconds (default: run until Ctrl-C)")
+    autopilot.add_argument("--frames", metavar="SOCKET",
+                           help="camera frame channel socket, or 'none' (default: from the port)")
+    autopilot.add_argument("--stats", metavar="FILE.json",
+                           help="write the link statistics (setpoint rate, latency) at exit")
+    autopilot.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
+                           help="slow the simulation to R x real time, R in (0, 1] (a loaded "
+                                "machine; run `alight hil` with the same R)")
+    autopilot.set_defaults(run=_sim_autopilot)
+    hil = sub.add_parser("hil", help=COMMANDS["hil"], description=COMMANDS["hil"])
+    hil.add_argument("--connect", required=True,
+                     help="udp:HOST:PORT, udpin:HOST:PORT, serial:/dev/ttyACM0:921600, ...")
+    hil.add_argument("--mission", default="hover", choices=["hover", "fly", "land"])
+    hil.add_argument("--profile", default="hover_profile.yaml",
+                     help="pilot profile of --mission hover (a path, or a file name in models/)")
+    hil.add_argument("--config", default="sim_vehicle.yaml",
+                     help="the vehicle model the onboard side assumes (its airframe file)")
+    hil.add_argument("--link-config", default="mavlink_vehicle.yaml",
+                     help="MAVLink vehicle YAML (a path, or a file name in models/)")
+    hil.add_argument("--duration", type=float, metavar="S",
+                     help="stop after S seconds (default: the mission's duration)")
+    hil.add_argument("--frames", metavar="SOCKET",
+                     help="camera frame channel socket, or 'none' (default: from the port)")
+    hil.add_argument("--wait", type=float, default=10.0, metavar="S",
+                     help="how long to wait for the flight controller (default 10 s)")
+    hil.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
+                     help="only against `alight sim-autopilot --realtime-rate R`: run slowed")
+    hil.add_argument("--seed", type=int, default=0, help="seed of every random source")
+    hil.add_argument("--run-dir", help="run folder to write (default runs/<time>-hil-<mission>)")
+    hil.set_defaults(run=_hil)
     return parser
 
 

@@ -13,6 +13,7 @@ from alight.diagrams.simulation import simulate
 from alight.models import model_path
 from alight.systems.control.scripted_pilot import PilotModel, PilotProfile, ScriptedPilot
 from alight.systems.params import load_params
+from alight.systems.rotations import tilt_deg
 from alight.systems.plant.hexacopter import load_hexacopter_params
 from alight.systems.thrust_curve import ThrustCurve
 
@@ -99,7 +100,7 @@ def summarize_hover(run: RunLog, profile: PilotProfile) -> HoverSummary:
                 and starts[i] < 15 else -1)
     in_hover = (t >= starts[hover] + 1.0) & (t <= starts[hover + 1])
     q = run.field("ground_truth", "q_WB").to_numpy()
-    tilt = np.degrees(np.arccos(np.clip(1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1, 1)))
+    tilt = tilt_deg(q)
     vz = truth["v_WB_2"].to_numpy()
     airborne = np.flatnonzero(z > z0 + 0.3)
     touchdown_speed = 0.0

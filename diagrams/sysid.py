@@ -23,6 +23,7 @@ from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.control.excitation_pilot import (ExcitationParams, ExcitationPilot,
                                                      ExcitationSegment)
 from alight.systems.control.identification import (AxisData, IdentificationError,
+                                                   check_excitation,
                                                    damped_velocity_windows, fit_attitude_axis,
                                                    fit_damping, simulate_attitude, vaf)
 from alight.systems.control.linear_model import (GRAVITY, LinearModelParams, euler_pitch_roll_yaw,
@@ -106,6 +107,7 @@ class SysidReport:
     vaf: dict[str, float]                 # per signal, on the validation set
     validation: AxisData
     simulated: dict[str, np.ndarray]
+    fit: dict[str, AxisData] = dc.field(default_factory=dict)  # 'pitch', 'roll', 'thrust' data
 
     def lines(self) -> list[str]:
         p = self.params
@@ -137,7 +139,7 @@ def identify(fit: dict[str, AxisData], validation: AxisData, mass: float,
     simulated = simulate_signals(params, validation)
     measured = measured_signals(validation)
     return SysidReport(params, {k: vaf(measured[k], simulated[k]) for k in SIGNALS}, validation,
-                       simulated)
+                       simulated, fit)
 
 
 FIT_FLIGHT = [ExcitationSegment(25.0, "pitch"), ExcitationSegment(25.0, "roll"),
@@ -207,3 +209,51 @@ def effective_damping(config: SimVehicleConfig, data: AxisData) -> np.ndarray:
     mass = pilot_model(config).mass
     return (c1 * np.mean(v**2, axis=0) + c2 * np.mean(np.abs(v)**3, axis=0)) \
         / (mass * np.mean(v**2, axis=0))
+
+
+@dc.dataclass
+class AttitudeReport:
+    """L(12) identified from a log, with VAF on the part of the log the fit did not use."""
+    pitch: object
+    roll: object
+    vaf: dict[str, float]
+    validation: AxisData
+    simulated: dict[str, np.ndarray]
+
+    def lines(self) -> list[str]:
+        return ["identified L(12) from the log:",
+                *(f"  {name:5s} stiffness {m.stiffness:7.2f}  damping {m.damping:6.2f}  gain "
+                  f"{m.gain:7.2f}" for name, m in (("pitch", self.pitch), ("roll", self.roll))),
+                "validation VAF: " + "  ".join(f"{k} {100 * v:.1f} %" for k, v in
+                                               self.vaf.items())]
+
+
+def identify_attitude(data: AxisData, fit_fraction: float = 0.6) -> AttitudeReport:
+    """L(12) per axis fitted on the first part of a record and validated on the rest."""
+    split = int(len(data.pitch) * fit_fraction)
+    part = lambda s: AxisData(data.dt, data.pitch_ref[s], data.roll_ref[s], data.pitch[s],
+                              data.roll[s])
+    fit, validation = part(slice(0, split)), part(slice(split, None))
+    pitch = fit_attitude_axis(fit.pitch_ref, fit.pitch, fit.dt, "pitch")
+    roll = fit_attitude_axis(fit.roll_ref, fit.roll, fit.dt, "roll")
+    for name, reference in (("pitch", validation.pitch_ref), ("roll", validation.roll_ref)):
+        check_excitation(f"{name} reference in the validation part (the last "
+                         f"{100 * (1 - fit_fraction):.0f} % of the log)", np.degrees(reference),
+                         1.0, "deg")
+    rate = lambda angle: (angle[1] - angle[0]) / data.dt
+    simulated = {"pitch": simulate_attitude(pitch, validation.pitch_ref, data.dt,
+                                            (validation.pitch[0], rate(validation.pitch))),
+                 "roll": simulate_attitude(roll, validation.roll_ref, data.dt,
+                                           (validation.roll[0], rate(validation.roll)))}
+    scores = {"pitch": vaf(validation.pitch, simulated["pitch"]),
+              "roll": vaf(validation.roll, simulated["roll"])}
+    return AttitudeReport(pitch, roll, scores, validation, simulated)
+
+
+def identify_from_ulog(path: Path, plot: Path | None = None) -> AttitudeReport:
+    """L(12) from a PX4 log; IdentificationError names missing topics or missing excitation."""
+    from alight.hw.ulog import attitude_data_from_ulog, load_ulog
+    report = identify_attitude(attitude_data_from_ulog(load_ulog(path)))
+    if plot is not None:
+        plot_validation(report, plot, title=f"{Path(path).name}: validation part")
+    return report

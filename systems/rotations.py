@@ -57,3 +57,9 @@ def heading(R_WB: np.ndarray) -> float:
 def heading_quaternion(eta: float) -> np.ndarray:
     """Level orientation with heading eta."""
     return np.array([np.cos(eta / 2), 0.0, 0.0, np.sin(eta / 2)])
+
+
+def tilt_deg(q: np.ndarray) -> np.ndarray:
+    """Tilt [deg]: the angle between z_B and z_W, for (w, x, y, z) quaternions (rows)."""
+    q = np.atleast_2d(q)
+    return np.degrees(np.arccos(np.clip(1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1, 1)))

@@ -5,6 +5,7 @@ from alight.diagrams.hover import fly_profile, load_pilot_profile
 from alight.diagrams.sim_vehicle import load_sim_vehicle_config
 from alight.systems.control.scripted_pilot import PilotProfile
 from alight.systems.params import load_params
+from alight.systems.rotations import tilt_deg  # noqa: F401 (tests import it from here)
 
 
 def profile(yaml_segments: str, period: float = 0.02) -> PilotProfile:
@@ -22,11 +23,6 @@ TAKEOFF = """
 {duration: 1.5, arm: true, vertical_acceleration: 0.0}
 """
 TAKEOFF_END = 5.0
-
-
-def tilt_deg(q: np.ndarray) -> np.ndarray:
-    """Angle between z_B and z_W for rows of (w, x, y, z) quaternions."""
-    return np.degrees(np.arccos(np.clip(1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1, 1)))
 
 
 @pytest.fixture(scope="session")

@@ -61,7 +61,7 @@ def check_excitation(name: str, signal: np.ndarray, minimum_std: float, unit: st
 def fit_attitude_axis(reference: np.ndarray, angle: np.ndarray, dt: float,
                       name: str = "attitude") -> AttitudeModel:
     """L(12) for one axis from a commanded angle and the achieved angle, both sampled every dt."""
-    check_excitation(f"{name} reference", reference, np.radians(1.0), "rad")
+    check_excitation(f"{name} reference", np.degrees(reference), 1.0, "deg")
     rate0 = (angle[1] - angle[0]) / dt
 
     def residual(log_params):

@@ -96,7 +96,9 @@ def rotate_to_navigation(vector_W: np.ndarray, yaw: float) -> np.ndarray:
 
 
 def model_state(p_WB, v_WB, q_WB, w_B, p_ref=np.zeros(3)) -> tuple[np.ndarray, float]:
-    """The model state x (position relative to p_ref) and the yaw that defines N."""
+    """The model state x (position relative to p_ref) and the yaw that defines N. q_WB and w_B
+    should come from the same, freshest attitude source (the flight controller's estimate):
+    pairing a delayed angle with current rates makes the attitude state inconsistent."""
     theta, phi, psi = euler_pitch_roll_yaw(q_WB)
     phi_dot, theta_dot = euler_rates(phi, theta, w_B)
     x = np.concatenate([rotate_to_navigation(np.asarray(p_WB) - p_ref, psi),

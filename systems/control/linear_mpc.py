@@ -25,8 +25,15 @@ from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND,
 from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
                                                  LinearModelParams, continuous_model, discretize,
                                                  model_state, rotate_to_navigation)
-from alight.systems.params import bounded
+from alight.systems.control.persistent_osqp import PersistentOsqp, QpResult
+from alight.systems.params import bounded, choice
+from alight.systems.rotations import heading_quaternion, quaternion_product, rotation_matrix
+from alight.systems.rotations import heading as heading_of_matrix
 from alight.systems.thrust_curve import ThrustCurve
+
+
+def heading_of(q: np.ndarray) -> float:
+    return heading_of_matrix(rotation_matrix(q))
 
 
 @dc.dataclass
@@ -38,12 +45,16 @@ class LinearMpcParams:
     weight_angles: list[float] = bounded([0.0, 0.0], 0.0, 1e6)   # pitch, roll
     weight_rates: list[float] = bounded([0.05, 0.05], 0.0, 1e6)
     weight_input: list[float] = bounded([20.0, 20.0, 0.2], 0.0, 1e6)  # pitch_r, roll_r, T_r
+    weight_input_change: list[float] = bounded([200.0, 200.0, 0.05], 0.0, 1e6)  # per step
     max_tilt_command: float = bounded(30.0, 1.0, 60.0, "deg")  # hard input bound
     thrust_acceleration: list[float] = bounded([-6.0, 8.0], -9.81, 30.0, "m/s^2")  # T_r bounds
     max_velocity: list[float] = bounded([6.0, 6.0, 2.5], 0.1, 30.0, "m/s")  # soft
     max_tilt: float = bounded(20.0, 1.0, 60.0, "deg")                       # soft
     slack_penalty: float = bounded(1000.0, 0.0, 1e9)                        # lambda of L(25)
     osqp_eps: float = bounded(1e-4, 1e-8, 1e-1)
+    # persistent: one warm-started osqp workspace built from the MathematicalProgram (fast);
+    # drake: Drake's OsqpSolver, set up cold every tick (bench/mpc_solve.py compares them).
+    solver: str = choice("persistent", "drake")
 
 
 class MpcReason(enum.IntEnum):
@@ -92,11 +103,19 @@ class LinearMpcQp:
         self.G_bar = np.kron(np.eye(N), G)
         h_step = np.repeat(np.concatenate([p.max_velocity, np.radians([p.max_tilt] * 2)]), 2)
         self.h = np.tile(h_step, N)
-        num_slacks = len(self.h)
+        # One slack per bounded quantity and step, shared by its +/- rows (only one side can be
+        # violated, so the penalty is still lambda * 1^T (G x - h)_+ of L(25)).
+        num_slacks = (len(self.h) + 4 * N) // 2
         self.prog = MathematicalProgram()
         self.u = self.prog.NewContinuousVariables(N * m, "u")
         self.s = self.prog.NewContinuousVariables(num_slacks, "s")
-        H = self.Gamma.T @ (self.W[:, None] * self.Gamma) + np.diag(self.Rw)
+        # Move suppression: sum_k ||u_k - u_{k-1}||^2 weighted, with u_{-1} the input applied last
+        # tick (not in L(20); without it the exact slack penalty drives bang-bang attitude
+        # commands that the real, delayed attitude loop turns into a limit cycle).
+        self.D = np.eye(N * m) - np.eye(N * m, k=-m)
+        self.Wd = np.tile(p.weight_input_change, N)
+        H = self.Gamma.T @ (self.W[:, None] * self.Gamma) + np.diag(self.Rw) \
+            + self.D.T @ (self.Wd[:, None] * self.D)
         self._H2 = 2.0 * H
         self.cost = self.prog.AddQuadraticCost(self._H2, np.zeros(N * m), self.u, is_convex=True)
         self.prog.AddLinearCost(p.slack_penalty * np.ones(num_slacks), 0.0, self.s)
@@ -105,33 +124,64 @@ class LinearMpcQp:
         upper = np.tile([tilt, tilt, p.thrust_acceleration[1]], N)
         self.prog.AddBoundingBoxConstraint(lower, upper, self.u)
         self.prog.AddBoundingBoxConstraint(0.0, np.inf, self.s)
-        self.GGamma = self.G_bar @ self.Gamma
+        # Soft rows: predicted velocities and angles (state part, updated per tick from x0),
+        # then the commanded pitch and roll themselves (a tilt the vehicle is told to hold).
+        G_u = np.kron(np.eye(N), np.kron(np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+                                         np.array([[1.0], [-1.0]])))
+        self.num_state_rows = len(self.h)
+        self.h = np.concatenate([self.h, np.full(len(G_u), np.radians(p.max_tilt))])
+        self.GGamma = np.vstack([self.G_bar @ self.Gamma, G_u])
         self.soft = self.prog.AddLinearConstraint(
-            np.hstack([self.GGamma, -np.eye(num_slacks)]), np.full(num_slacks, -np.inf),
+            np.hstack([self.GGamma, -np.kron(np.eye(num_slacks), np.ones((2, 1)))]),
+            np.full(len(self.h), -np.inf),
             self.h.copy(), np.concatenate([self.u, self.s]))
+        self._u_index = self.prog.FindDecisionVariableIndices(self.u)
+        self._s_index = self.prog.FindDecisionVariableIndices(self.s)
+        self.persistent = PersistentOsqp(self.prog, p.osqp_eps) if p.solver == "persistent" \
+            else None
         self.solver = OsqpSolver()
         self.options = SolverOptions()
         for name, value in (("eps_abs", p.osqp_eps), ("eps_rel", p.osqp_eps),
                             ("max_iter", 4000), ("polishing", 1)):
             self.options.SetOption(OsqpSolver.id(), name, value)
 
-    def update(self, x0: np.ndarray, s_y: np.ndarray, s_u: np.ndarray) -> None:
-        """New linear cost term and soft bounds for the state x0 and references (N*n, N*m)."""
+    def update(self, x0: np.ndarray, s_y: np.ndarray, s_u: np.ndarray,
+               u_previous: np.ndarray | None = None) -> None:
+        """New linear cost term and soft bounds for the state x0, the references (N*n, N*m) and
+        the input applied last tick (None: no move suppression of the first input)."""
         f = self.Gamma.T @ (self.W * (self.Phi @ x0 - s_y)) - self.Rw * s_u
+        if u_previous is not None:
+            e = np.zeros(len(f))
+            e[:NUM_INPUTS] = u_previous
+            f -= self.D.T @ (self.Wd * e)
         self.cost.evaluator().UpdateCoefficients(self._H2, 2.0 * f, 0.0, True)
-        self.soft.evaluator().UpdateUpperBound(self.h - self.G_bar @ (self.Phi @ x0))
+        bound = self.h.copy()
+        bound[:self.num_state_rows] -= self.G_bar @ (self.Phi @ x0)
+        self.soft.evaluator().UpdateUpperBound(bound)
 
-    def solve(self):
+    def solve(self) -> QpResult:
+        """Solves the program with its current data; `inputs(result)`, `slacks(result)`."""
+        if self.persistent is not None:
+            return self.persistent.solve()
         result = self.solver.Solve(self.prog, None, self.options)
-        u = result.GetSolution(self.u)
-        return result.is_success() and np.all(np.isfinite(u)), u.reshape(self.N, NUM_INPUTS), \
-            int(result.get_solver_details().status_val), result
+        x = result.GetSolution(self.prog.decision_variables())
+        details = result.get_solver_details()
+        return QpResult(result.is_success() and bool(np.all(np.isfinite(x))), x,
+                        int(details.status_val), int(details.iter))
+
+    def inputs(self, result: QpResult) -> np.ndarray:
+        """(N, 3) planned inputs [pitch_r, roll_r, T_r]."""
+        return result.x[self._u_index].reshape(self.N, NUM_INPUTS)
+
+    def slacks(self, result: QpResult) -> np.ndarray:
+        return result.x[self._s_index]
 
 
 # Unrestricted state: fc_command, controller_status, previous solution, consecutive failures.
 class LinearMpc(LeafSystem):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `reference` REFERENCE (position, velocity, heading);
-            `active` (1); `last_command` FC_COMMAND; `fc_attitude` FC_ATTITUDE (body rates for L(17))
+    """Inputs  `state_estimate` STATE_ESTIMATE (position, velocity, heading); `reference` REFERENCE
+            (position, velocity, heading); `active` (1); `last_command` FC_COMMAND;
+            `fc_attitude` FC_ATTITUDE (pitch, roll and body rates for L(17))
     Outputs `fc_command` FC_COMMAND (attitude+thrust), `controller_status` CONTROLLER_STATUS,
             `prediction` (N x 3 inputs of the last solution, flattened)
     """
@@ -199,17 +249,25 @@ class LinearMpc(LeafSystem):
                 or not np.all(np.isfinite(reference)):
             self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0, start)
             return
+        # Position and velocity from odometry; attitude and rates from the flight controller's
+        # estimate (fresh, 250 Hz), rotated into the odometry frame by the heading difference.
+        attitude = self._attitude.Eval(context)
+        q_WB = FC_ATTITUDE.get(attitude, "q_WB")
+        offset = STATE_ESTIMATE.get(estimate, "heading") - heading_of(q_WB)
+        q_EB = quaternion_product(heading_quaternion(offset), q_WB)
         x0, yaw = model_state(STATE_ESTIMATE.get(estimate, "p_EB"),
-                              STATE_ESTIMATE.get(estimate, "v_EB"),
-                              STATE_ESTIMATE.get(estimate, "q_EB"),
-                              FC_ATTITUDE.get(self._attitude.Eval(context), "w_B"),
-                              REFERENCE.get(reference, "p"))
-        self._qp.update(x0, *self.references(reference, yaw))
-        ok, u, solver_status, _ = self._qp.solve()
-        if not ok:
+                              STATE_ESTIMATE.get(estimate, "v_EB"), q_EB,
+                              FC_ATTITUDE.get(attitude, "w_B"), REFERENCE.get(reference, "p"))
+        previous = context.get_discrete_state(self._solution).get_value()[:NUM_INPUTS]
+        self._qp.update(x0, *self.references(reference, yaw),
+                        previous if np.all(np.isfinite(previous)) else None)
+        result = self._qp.solve()
+        solver_status = result.status
+        if not result.ok:
             self._fail(context, discrete_state, now, heading, MpcReason.FALLBACK, solver_status,
                        start)
             return
+        u = self._qp.inputs(result)
         discrete_state.set_value(self._command, self._to_command(u[0], now, heading))
         discrete_state.set_value(self._solution, u.ravel())
         discrete_state.set_value(self._failures, [0.0])

@@ -1,0 +1,265 @@
+"""The landing paper's linear MPC: model, QP, failure handling and closed-loop behaviour."""
+import copy
+from dataclasses import replace as dc_replace
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from scipy.signal import cont2discrete
+
+from alight.diagrams.fly import add_mpc_loop, add_mpc_logging, load_linear_model, load_linear_mpc
+from alight.diagrams.run_log import RunLog, write_run_folder
+from alight.diagrams.simulation import simulate
+from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
+                                     STATE_ESTIMATE)
+from alight.systems.control.linear_model import (continuous_model, discretize,
+                                                 euler_pitch_roll_yaw)
+from alight.systems.control.linear_mpc import LinearMpc, LinearMpcQp, MpcReason
+from alight.systems.control.persistent_osqp import QpResult
+from alight.systems.plant.wind import WindParams
+from conftest import tilt_deg
+
+HOVER = np.array([0.0, 0.0, 3.0])
+
+
+class ScriptedReference(LeafSystem):
+    """Reference p(t), v(t) from a function, and an arm request that arms at low thrust first."""
+
+    def __init__(self, fn):
+        super().__init__()
+        self._fn = fn
+        self.DeclareVectorOutputPort("reference", REFERENCE.size, self._calc)
+        self.DeclareVectorOutputPort("arm", 2, lambda c, o: o.SetFromVector(
+            [1.0, float(c.get_time() > 0.5)]))
+
+    def _calc(self, context, output):
+        p, v = self._fn(context.get_time())
+        output.SetFromVector(REFERENCE.pack(stamp=context.get_time(), p=p, v=v, a=np.zeros(3),
+                                            j=np.zeros(3), heading=0.0, heading_rate=0.0))
+
+
+def fly(config, fn, duration, run_dir, mpc_params=None, estimate_filter=None, seed=0) -> RunLog:
+    builder = DiagramBuilder()
+    reference = builder.AddSystem(ScriptedReference(fn))
+    loop = add_mpc_loop(builder, config, reference.GetOutputPort("reference"),
+                        reference.GetOutputPort("arm"), mpc_params=mpc_params,
+                        estimate_filter=estimate_filter)
+    loggers = add_mpc_logging(builder, loop, reference.GetOutputPort("reference"))
+    simulator = simulate(builder.Build(), duration, seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {"seed": seed})
+    return RunLog(run_dir)
+
+
+def hover_then(fn, t0):
+    """Climb to HOVER, then follow fn(t - t0) from t0."""
+    return lambda t: (HOVER, np.zeros(3)) if t < t0 else fn(t - t0)
+
+
+# --- model and QP ----------------------------------------------------------------------------
+
+def test_zoh_discretization_matches_scipy():
+    A, B = continuous_model(load_linear_model())
+    Ad, Bd = discretize(A, B, 0.05)
+    expected = cont2discrete((A, B, np.eye(10), np.zeros((10, 3))), 0.05, method="zoh")
+    np.testing.assert_allclose(Ad, expected[0], atol=1e-12)
+    np.testing.assert_allclose(Bd, expected[1], atol=1e-12)
+
+
+def test_qp_moves_toward_the_reference_within_bounds():
+    params = load_linear_mpc()
+    qp = LinearMpcQp(load_linear_model(), params)
+    x0 = np.zeros(10)
+    x0[0] = -5.0  # 5 m behind the reference along x_N
+    qp.update(x0, np.zeros(params.horizon_steps * 10), np.zeros(params.horizon_steps * 3))
+    result = qp.solve()
+    u = qp.inputs(result)
+    assert result.ok
+    assert u[0, 0] > 0.05  # pitch forward (L(11): x_ddot = g theta)
+    assert np.all(np.abs(u[:, :2]) <= np.radians(params.max_tilt_command) + 1e-6)
+    assert qp.slacks(result).max() < 0.05  # a 5 m step needs no constraint violation in prediction
+
+
+def test_soft_constraints_keep_the_qp_feasible_when_the_state_violates_them():
+    params = load_linear_mpc()
+    qp = LinearMpcQp(load_linear_model(), params)
+    x0 = np.zeros(10)
+    x0[3] = 15.0               # far beyond the 6 m/s velocity limit
+    x0[6] = np.radians(45.0)   # and beyond the tilt limit
+    qp.update(x0, np.zeros(params.horizon_steps * 10), np.zeros(params.horizon_steps * 3))
+    result = qp.solve()
+    u = qp.inputs(result)
+    assert result.ok and np.all(np.isfinite(u))
+    assert qp.slacks(result).max() > 1.0  # the violation is carried by the slacks
+    assert u[0, 0] < 0  # braking
+
+
+def test_persistent_osqp_solves_the_same_program_as_drakes_osqp():
+    params = load_linear_mpc()
+    qps = {name: LinearMpcQp(load_linear_model(), dc_replace(params, solver=name,
+                                                             osqp_eps=1e-6))
+           for name in ("persistent", "drake")}
+    rng = np.random.default_rng(1)
+    for _ in range(5):  # consecutive ticks: the persistent workspace warm-starts
+        x0 = rng.normal(0.0, [2, 2, 1, 2, 2, 1, 0.2, 0.2, 0.5, 0.5])
+        u = {}
+        for name, qp in qps.items():
+            qp.update(x0, np.zeros(params.horizon_steps * 10), np.zeros(params.horizon_steps * 3),
+                      np.array([0.05, -0.05, 0.0]))
+            result = qp.solve()
+            assert result.ok, name
+            u[name] = qp.inputs(result)
+        np.testing.assert_allclose(u["persistent"], u["drake"], atol=2e-3)
+
+
+def _mpc_context():
+    dut = LinearMpc(load_linear_model(), load_linear_mpc())
+    context = dut.CreateDefaultContext()
+    estimate = STATE_ESTIMATE.pack(
+        stamp=0.0, p_EB=[0, 0, 3.0], v_EB=np.zeros(3), a_EB=np.zeros(3), q_EB=[1, 0, 0, 0],
+        heading=0.0, heading_rate=0.0, var_pv=np.zeros(6), var_heading=0.0, frame_id=0,
+        frame_counter=0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0)
+    dut.GetInputPort("state_estimate").FixValue(context, estimate)
+    dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
+        stamp=0.0, p=[2.0, 0, 3.0], v=np.zeros(3), a=np.zeros(3), j=np.zeros(3), heading=0.0,
+        heading_rate=0.0))
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    dut.GetInputPort("last_command").FixValue(context, np.zeros(FC_COMMAND.size))
+    dut.GetInputPort("fc_attitude").FixValue(context, FC_ATTITUDE.pack(
+        stamp=0.0, q_WB=[1, 0, 0, 0], w_B=np.zeros(3)))
+    return dut, context, estimate
+
+
+def _tick(dut, context):
+    """Runs exactly one periodic update of the controller."""
+    simulator = Simulator(dut, context)
+    simulator.AdvanceTo(context.get_time() + load_linear_mpc().period)
+    return (dut.GetOutputPort("fc_command").Eval(context),
+            dut.GetOutputPort("controller_status").Eval(context))
+
+
+def test_nan_estimate_never_reaches_the_command():
+    dut, context, estimate = _mpc_context()
+    bad = estimate.copy()
+    bad[STATE_ESTIMATE.slice("p_EB")] = np.nan
+    dut.GetInputPort("state_estimate").FixValue(context, bad)
+    command, status = _tick(dut, context)
+    assert np.all(np.isfinite(command))
+    assert CONTROLLER_STATUS.get(status, "valid") == 0.0
+    assert CONTROLLER_STATUS.get(status, "reason") == MpcReason.BAD_ESTIMATE
+
+
+def test_solver_failure_uses_previous_solution_once_then_reports(monkeypatch):
+    dut, context, _ = _mpc_context()
+    command, status = _tick(dut, context)
+    assert CONTROLLER_STATUS.get(status, "valid") == 1.0
+    previous = dut.GetOutputPort("prediction").Eval(context).reshape(-1, 3)
+    failed = QpResult(False, np.full(dut._qp.prog.num_vars(), np.nan), -3, 4000)
+    monkeypatch.setattr(dut._qp, "solve", lambda: failed)
+    command, status = _tick(dut, context)
+    assert CONTROLLER_STATUS.get(status, "reason") == MpcReason.FALLBACK
+    assert CONTROLLER_STATUS.get(status, "valid") == 1.0
+    pitch, roll, _ = euler_pitch_roll_yaw(FC_COMMAND.get(command, "q_WD"))
+    assert pitch == pytest.approx(previous[1, 0], abs=1e-9)  # the next input of the last plan
+    command, status = _tick(dut, context)
+    assert CONTROLLER_STATUS.get(status, "reason") == MpcReason.SOLVER_FAILED
+    assert CONTROLLER_STATUS.get(status, "valid") == 0.0
+    assert np.all(np.isfinite(command))
+
+
+# --- closed loop (mocap odometry) ----------------------------------------------------------
+
+def _after(run, stream, t0):
+    frame = run[stream]
+    return frame[frame["time"] >= t0]
+
+
+@pytest.fixture(scope="module")
+def step_run(vehicle_config, tmp_path_factory):
+    step = hover_then(lambda t: (HOVER + [5.0, 0, 0], np.zeros(3)), 8.0)
+    return fly(vehicle_config, step, 16.0, tmp_path_factory.mktemp("runs") / "step")
+
+
+def test_position_step_settles_with_bounded_overshoot_and_tilt(step_run):
+    truth = _after(step_run, "ground_truth", 8.0)
+    x = truth["p_WB_0"].to_numpy()
+    t = truth["time"].to_numpy() - 8.0
+    outside = np.flatnonzero(np.abs(x - 5.0) > 0.2)
+    settle = t[min(outside[-1] + 1, len(t) - 1)] if len(outside) else 0.0
+    assert settle < 4.0, f"settling time {settle:.2f} s"          # measured: see README
+    assert x.max() - 5.0 < 0.5, f"overshoot {x.max() - 5.0:.2f} m"  # < 10 %
+    params = load_linear_mpc()
+    assert tilt_deg(step_run.field("ground_truth", "q_WB").to_numpy()).max() \
+        <= params.max_tilt_command
+    commanded = np.array([euler_pitch_roll_yaw(q)[:2]
+                          for q in step_run.field("fc_command", "q_WD").to_numpy()])
+    # Hard input bounds on commanded pitch and roll, up to the solver's tolerance.
+    assert np.degrees(np.abs(commanded)).max() <= params.max_tilt_command + 0.1
+
+
+@pytest.mark.parametrize("with_velocity, bound", [(True, 0.2), (False, None)])
+def test_moving_reference_lag_with_and_without_velocity(vehicle_config, tmp_path, with_velocity,
+                                                        bound):
+    speed = 4.0
+    moving = hover_then(lambda t: (HOVER + [speed * t, 0, 0],
+                                   np.array([speed, 0, 0]) if with_velocity else np.zeros(3)),
+                        6.0)
+    run = fly(vehicle_config, moving, 16.0, tmp_path)
+    truth = _after(run, "ground_truth", 12.0)
+    lag = (HOVER[0] + speed * (truth["time"] - 6.0) - truth["p_WB_0"]).to_numpy()
+    if bound is not None:
+        assert np.abs(lag).mean() < bound, f"lag {np.abs(lag).mean():.3f} m"
+    else:
+        # L Sec. 6.3: a position-only reference leaves a constant offset behind a moving target.
+        assert lag.mean() > 0.5, f"lag {lag.mean():.3f} m"
+
+
+def test_hover_in_15_kmh_gusty_wind_stays_within_radius(vehicle_config, tmp_path):
+    config = copy.deepcopy(vehicle_config)
+    config.wind = WindParams(mean_speed=15 / 3.6, direction=45.0, gust_std=0.8)
+    run = fly(config, lambda t: (HOVER, np.zeros(3)), 25.0, tmp_path, seed=2)
+    truth = _after(run, "ground_truth", 10.0)
+    error = np.linalg.norm(run.field("ground_truth", "p_WB").to_numpy()[-len(truth):] - HOVER,
+                           axis=1)
+    assert error.max() < 1.0, f"max distance {error.max():.2f} m"
+
+
+class EstimateJump(LeafSystem):
+    """Adds `jump` to the estimated position from time t0 (a relocalization jump)."""
+
+    def __init__(self, jump, t0):
+        super().__init__()
+        self._jump, self._t0 = np.asarray(jump), t0
+        self._in = self.DeclareVectorInputPort("in", STATE_ESTIMATE.size)
+        self.DeclareVectorOutputPort("out", STATE_ESTIMATE.size, self._calc)
+
+    def _calc(self, context, output):
+        value = self._in.Eval(context).copy()
+        if context.get_time() >= self._t0:
+            value[STATE_ESTIMATE.slice("p_EB")] += self._jump
+        output.SetFromVector(value)
+
+
+def _jump_filter(builder, port):
+    jump = builder.AddSystem(EstimateJump([5.0, 0.0, 0.0], 8.0))
+    builder.Connect(port, jump.get_input_port())
+    return jump.get_output_port()
+
+
+@pytest.mark.parametrize("soft", [True, False])
+def test_estimate_jump_soft_constraints_bound_speed_and_tilt(vehicle_config, tmp_path, soft):
+    params = copy.deepcopy(load_linear_mpc())
+    params.max_velocity = [2.0, 2.0, 1.0]  # a cautious constraint group, as M Fig. 13
+    params.max_tilt = 12.0
+    if not soft:
+        params.slack_penalty = 0.0  # constraints priced at nothing: the unconstrained MPC
+    run = fly(vehicle_config, lambda t: (HOVER, np.zeros(3)), 16.0, tmp_path, params,
+              _jump_filter)
+    truth = _after(run, "ground_truth", 8.0)
+    speed = np.linalg.norm(truth[["v_WB_0", "v_WB_1"]].to_numpy(), axis=1).max()
+    tilt = tilt_deg(run.field("ground_truth", "q_WB").to_numpy()[-len(truth):]).max()
+    if soft:
+        assert speed < 2.0 * 1.15, f"speed {speed:.2f} m/s"
+        assert tilt < 12.0 + 4.0, f"tilt {tilt:.1f} deg"
+    else:
+        assert speed > 2.5 and tilt > 16.0  # what the constraints prevent
