@@ -105,10 +105,12 @@ class HilResult:
 def run_hil(connect: str, mission: str, options: MissionOptions, params: MavlinkVehicleParams,
             duration: float | None = None, seed: int = 0, run_dir=None,
             frame_address: str | None = None, wait: float = 10.0,
-            realtime_rate: float = 1.0) -> HilResult:
+            realtime_rate: float = 1.0, follow_autopilot_clock: bool = False) -> HilResult:
     """Connects, waits for the autopilot (heartbeat and TIMESYNC), asks for the telemetry rates,
     flies `mission` in real time and writes the run folder. `realtime_rate` below 1 only
-    against a simulated autopilot slowed to the same rate."""
+    against a simulated autopilot slowed to the same rate. `follow_autopilot_clock` (simulated
+    autopilots only) paces the onboard diagram on the autopilot's clock as well as the wall
+    clock, so that a simulation that falls behind real time slows the onboard side with it."""
     from alight.diagrams.hover import default_run_dir
     check_mission(mission)
     clock = WallClock(realtime_rate)
@@ -117,6 +119,8 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
     try:
         link.wait_for_autopilot(wait)
         rates = link.request_message_rates()
+        if follow_autopilot_clock:
+            link.follow_autopilot_clock()
         diagram, loggers, mission_duration = make_hil_diagram(link, params, mission, options,
                                                               frames)
         sender = command_sender(diagram.GetSubsystemByName("vehicle"))
@@ -124,14 +128,16 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
         def safe_stop() -> str:
             sender.wait_idle()
             return link.safe_stop()
-        simulator, report = run_realtime(diagram, duration or mission_duration, clock, seed=seed,
-                                         safe_stop=safe_stop)
+        simulator, report = run_realtime(
+            diagram, duration or mission_duration, clock, seed=seed, safe_stop=safe_stop,
+            pace=link.autopilot_time if follow_autopilot_clock else None)
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir(f"hil-{mission}",
                                                                              seed)
         write_run_folder(run_dir, loggers, simulator.get_context(), {
             "command": "hil", "mission": mission, "connect": connect, "seed": seed,
             "duration": simulator.get_context().get_time(), "vehicle": params,
             "profile": options.profile, "message_rates": rates, "realtime_rate": realtime_rate,
+            "follow_autopilot_clock": follow_autopilot_clock,
             "realtime": dc.asdict(report), "link": dc.asdict(link.counters_snapshot()),
             "arming_errors": sender.last_error})
         return HilResult(report, run_dir, rates)

@@ -148,6 +148,7 @@ class MavlinkLink(MavlinkEndpoint):
         self._imu = collections.deque()
         self._imu_lock = threading.Lock()
         self._last_imu_t_fc = -math.inf
+        self._frozen_offset_ns: int | None = None
         self._imu_backwards = 0
         self.imu_overflow = 0
         self.imu_out_of_order = 0
@@ -321,10 +322,24 @@ class MavlinkLink(MavlinkEndpoint):
 
     def to_local(self, t_fc: float) -> float:
         """An autopilot time [s] on our clock (`clock.now()` seconds); NaN until TIMESYNC locks."""
-        offset = self.timesync.offset_ns
+        offset = self._frozen_offset_ns if self._frozen_offset_ns is not None \
+            else self.timesync.offset_ns
         if offset is None:
             return math.nan
         return self.clock.from_scaled(t_fc - offset * 1e-9)
+
+    def follow_autopilot_clock(self) -> None:
+        """From now on map autopilot times with the current TIMESYNC offset, unrefined: onboard
+        time then is the autopilot's time plus a constant, as the runner's `pace` needs when it
+        follows a simulated autopilot (`autopilot_time`). Not for a real flight controller."""
+        if not self.timesync.locked:
+            raise LinkTimeout("no TIMESYNC lock: cannot follow the autopilot's clock")
+        self._frozen_offset_ns = self.timesync.offset_ns
+
+    def autopilot_time(self) -> float:
+        """The newest IMU time received from the autopilot, on our clock (NaN before one)."""
+        return self.to_local(self._last_imu_t_fc) if math.isfinite(self._last_imu_t_fc) \
+            else math.nan
 
     # --- commands --------------------------------------------------------------------------
     def command(self, command: int, *params: float, timeout: float | None = None) -> int:

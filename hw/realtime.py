@@ -56,6 +56,7 @@ class RealtimeReport:
     interrupted: bool        # stopped by Ctrl-C / SIGTERM
     safe_stop: str           # what the final safe command did
     error: str = ""          # an exception that stopped the run, if any
+    paced_wait: float = 0.0  # s of wall time spent waiting for the peer's clock (`pace`)
 
     @property
     def realtime_rate(self) -> float:
@@ -65,9 +66,40 @@ class RealtimeReport:
         return [f"ran {self.sim_time:.2f} s in {self.wall_time:.2f} s wall (rate "
                 f"{self.realtime_rate:.3f}), {self.overruns} overruns of {self.ticks} ticks, "
                 f"max lag {1e3 * self.max_lag:.1f} ms" + (", interrupted" if self.interrupted
-                                                          else ""),
+                                                          else "")
+                + (f", {self.paced_wait:.2f} s waiting for the autopilot's clock"
+                   if self.paced_wait else ""),
                 f"final safe command: {self.safe_stop}"] + ([f"error: {self.error}"]
                                                              if self.error else [])
+
+
+class _Pacer:
+    """Waits for a peer's clock (see `run_realtime`)."""
+
+    def __init__(self, peer_time: Callable[[], float], stall: float):
+        self._peer_time, self._stall = peer_time, stall
+        self._last_seen, self._last_change = -math.inf, time.monotonic()
+        self._stalled = False
+
+    def wait_until(self, t: float) -> float:
+        start = time.monotonic()
+        while True:
+            peer = self._peer_time()
+            now = time.monotonic()
+            if math.isfinite(peer) and peer > self._last_seen:
+                self._last_seen, self._last_change = peer, now
+                if self._stalled:
+                    LOG.warning("the autopilot's clock moves again: pacing on it")
+                    self._stalled = False
+            if self._last_seen >= t:
+                return now - start
+            if now - self._last_change > self._stall:
+                if not self._stalled:
+                    LOG.warning("the autopilot's clock stopped for %.1f s: running on the wall "
+                                "clock alone", self._stall)
+                    self._stalled = True
+                return now - start
+            time.sleep(0.0005)
 
 
 class _Terminate(Exception):
@@ -76,7 +108,8 @@ class _Terminate(Exception):
 
 def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 0,
                  safe_stop: Callable[[], str] | None = None, tick: float = 0.01,
-                 overrun_tolerance: float = 0.02, simulator: Simulator | None = None
+                 overrun_tolerance: float = 0.02, simulator: Simulator | None = None,
+                 pace: Callable[[], float] | None = None, pace_stall: float = 1.0
                  ) -> tuple[Simulator, RealtimeReport]:
     """Runs `diagram` in real time (at `clock.rate`) until `duration` (None: until Ctrl-C /
     SIGTERM).
@@ -84,14 +117,21 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     Each `tick` of diagram time is one `AdvanceTo`; a tick that ends more than
     `overrun_tolerance` behind the wall clock is an overrun (logged, counted). Whatever ends the
     run (the duration, Ctrl-C, SIGTERM, an exception), `safe_stop()` runs last and its answer is
-    reported; an exception is re-raised after it."""
+    reported; an exception is re-raised after it.
+
+    `pace` (optional) returns how far a simulated peer has got on our clock: each tick then also
+    waits until the peer has reached it, so that a simulated autopilot that falls behind the wall
+    clock (a loaded machine) slows the diagram down with it instead of seeing its commands
+    squeezed or stretched. When the peer's time stops for `pace_stall` s of wall time (link
+    lost), ticks stop waiting for it until it moves again."""
     simulator = simulator or Simulator(diagram)
     context = simulator.get_mutable_context()
     diagram.SetRandomContext(context, RandomGenerator(seed))
     simulator.set_target_realtime_rate(clock.rate)
     previous = _install_sigterm()
     ticks = overruns = 0
-    max_lag = 0.0
+    max_lag = paced_wait = 0.0
+    pacer = _Pacer(pace, pace_stall) if pace is not None else None
     interrupted = False
     error = None
     clock.restart()
@@ -102,6 +142,8 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
         t = context.get_time()
         while t < end:
             t = min(t + tick, end)
+            if pacer is not None:
+                paced_wait += pacer.wait_until(t)
             simulator.AdvanceTo(t)
             ticks += 1
             lag = clock.now() - t
@@ -126,7 +168,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
                 stop_answer = f"FAILED: {e}"
                 LOG.error("final safe command failed: %s", e)
     report = RealtimeReport(context.get_time(), wall, ticks, overruns, max_lag, interrupted,
-                            stop_answer, "" if error is None else repr(error))
+                            stop_answer, "" if error is None else repr(error), paced_wait)
     if error is not None:
         LOG.error("real-time run stopped by an error; %s", "; ".join(report.lines()))
         raise error

@@ -202,6 +202,7 @@ class AutopilotBridge(LeafSystem):
         self._one_shots: set[str] = set()
         self._next_heartbeat = self._next_command = self._next_imu = 0.0
         self._last_heartbeat = None
+        self._next_heartbeat_wall = 0.0
         self._next_frames = 0.0
         self._last_imu_seq = -1
         self._last_imu_sent = {"HIGHRES_IMU": -math.inf, "SCALED_IMU": -math.inf}
@@ -282,13 +283,16 @@ class AutopilotBridge(LeafSystem):
     # --- simulation -> link ----------------------------------------------------------------
     def _send_telemetry(self, context, now):
         endpoint, mav = self._endpoint, self._endpoint.mav
-        if now >= self._next_heartbeat:
+        wall = time.monotonic()
+        if now >= self._next_heartbeat or wall >= self._next_heartbeat_wall:
             self._last_heartbeat = self._rules.heartbeat(self._status.Eval(context))
             base_mode, custom_mode, system_status = self._last_heartbeat
             endpoint.send(mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
                                                mavlink.MAV_AUTOPILOT_PX4, base_mode, custom_mode,
                                                system_status))
             self._next_heartbeat = now + self._params.heartbeat_period
+            # Also by the wall clock: a simulation running behind real time still shows it lives.
+            self._next_heartbeat_wall = wall + self._params.heartbeat_period
         if now >= self._next_imu:  # a new sample is due (the IMU updates every imu_period)
             new = self._imu.Eval(context).newer_than(self._last_imu_seq)
             if len(new):
