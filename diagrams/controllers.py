@@ -16,6 +16,7 @@ CONTROLLERS = ("se3", "mpc", "failsafe")
 @dc.dataclass
 class ControllersConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")  # 100 Hz (DESIGN.md)
+    max_prediction: float = bounded(0.1, 0.0, 1.0, "s")  # estimate latency compensated at most
     vehicle: VehicleModel = dc.field(default_factory=VehicleModel)
     so3: So3Params = dc.field(default_factory=So3Params)
     disturbance_limits: DisturbanceLimits = dc.field(default_factory=DisturbanceLimits)
@@ -33,10 +34,11 @@ def make_controller(name: str, config: ControllersConfig):
     """The LeafSystem of controller `name` (one of CONTROLLERS)."""
     if name == "se3":
         return Se3Controller(config.vehicle, config.so3, config.se3, config.disturbance_limits,
-                             config.period)
+                             config.period, config.max_prediction)
     if name == "mpc":
         return MpcForceController(config.vehicle, config.so3, config.mpc,
-                                  config.disturbance_limits, config.period)
+                                  config.disturbance_limits, config.period,
+                                  config.max_prediction)
     if name == "failsafe":
         return FailsafeController(config.vehicle, config.failsafe, config.period)
     raise ValueError(f"unknown controller {name!r}: expected one of {list(CONTROLLERS)}")

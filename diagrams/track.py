@@ -46,6 +46,7 @@ class TrackExperiment:
     laps: float = bounded(2.0, 0.25, 100.0)
     ramp: float = bounded(3.0, 0.5, 30.0, "s")           # circle's angular-speed ramp
     altitude: float = bounded(3.0, 0.5, 100.0, "m")
+    climb_limits: list[float] = bounded([1.5, 1.5, 4.0], 0.1, 100.0)  # v, a, j of the take-off
     step_sizes: list[float] = bounded([1.0, 2.0, 4.0], -50.0, 50.0, "m")  # along x, M Sec. 8.1
     step_axes: str = choice("x", "xyz")                  # single axis (Fig. 7) or 3D (Fig. 8)
     step_hold: float = bounded(3.0, 0.5, 60.0, "s")
@@ -63,41 +64,38 @@ class TrackExperiment:
                              f"{self.speed ** 2 / self.radius:.1f} m/s^2: at most 12 m/s^2")
 
 
-CLIMB_LIMITS = (1.5, 1.0, 2.0)   # m/s, m/s^2, m/s^3 of the take-off and of repositioning
 SPOOL_TIME = 2.0                 # s on the ground while the controller ramps its thrust up
 
 
 def make_trajectory(experiment: TrackExperiment, p_ground: np.ndarray) -> ref.Trajectory:
-    """Take-off from `p_ground`, the experiment, hold. Marks: `start` and `end` of the scored
-    part (for the circle, its constant-speed cruise)."""
+    """Take-off from `p_ground` (turning to the experiment's first heading), `settle`, the
+    experiment, hold. Marks: `start` and `end` of the scored part (for the circle, its last
+    constant-speed lap: the integrators learn the drag on the laps before)."""
     e = experiment
-    eta0 = 0.0
-    pieces = ref.takeoff(p_ground, e.altitude, eta0, eta0, SPOOL_TIME, CLIMB_LIMITS)
+    eta = np.pi if e.trajectory == "circle" and e.heading == "center" else 0.0
+    pieces = ref.takeoff(p_ground, e.altitude, 0.0, eta, SPOOL_TIME, tuple(e.climb_limits))
     p_top = np.asarray(p_ground, float) + [0.0, 0.0, e.altitude]
-    pieces.append(ref.hold(p_top, eta0, e.settle))
-    marks = {}
+    pieces.append(ref.hold(p_top, eta, e.settle))
+    start = sum(p.duration for p in pieces)
     if e.trajectory == "circle":
         centre = p_top - [e.radius, 0.0, 0.0]        # the circle passes through p_top
-        eta_start = np.pi if e.heading == "center" else eta0
-        pieces += [ref.Transition(p_top, p_top, eta0, eta_start, 2.0), ref.hold(p_top, eta_start, 1.0)]
         circle = ref.Circle(centre, e.radius, e.speed, e.ramp, e.laps, e.heading == "center",
-                            eta0)
-        start = sum(p.duration for p in pieces)
+                            eta)
         pieces.append(circle)
-        marks = {"start": start + e.ramp, "end": start + e.ramp + circle.cruise}
-        end = circle.sample(circle.duration)
-        pieces.append(ref.hold(end.p, end.heading, e.settle))
+        lap = 2 * np.pi / circle.omega
+        end = start + e.ramp + circle.cruise
+        marks = {"start": max(start + e.ramp, end - lap), "end": end}
+        last = circle.sample(circle.duration)
+        pieces.append(ref.hold(last.p, last.heading, e.settle))
     elif e.trajectory == "steps":
         sizes = np.asarray(e.step_sizes, float)
         directions = np.ones(3) if e.step_axes == "xyz" else np.array([1.0, 0.0, 0.0])
         # Out and back for each size: p_top + s d, p_top.
         offsets = np.concatenate([[s * directions, np.zeros(3)] for s in sizes])
-        start = sum(p.duration for p in pieces)
-        pieces += ref.steps(p_top, eta0, offsets, e.step_hold, tuple(e.step_limits))
+        pieces += ref.steps(p_top, eta, offsets, e.step_hold, tuple(e.step_limits))
         marks = {"start": start, "end": sum(p.duration for p in pieces)}
     else:
-        start = sum(p.duration for p in pieces)
-        pieces.append(ref.hold(p_top, eta0, e.hover_time))
+        pieces.append(ref.hold(p_top, eta, e.hover_time))
         marks = {"start": start, "end": start + e.hover_time}
     return ref.Trajectory(pieces, marks)
 

@@ -131,3 +131,11 @@ def test_mpc_qp_respects_speed_acceleration_and_jerk_bounds_after_a_5_m_error(so
     states = (qp.Phi @ x0[0] + qp.Gamma @ u[0]).reshape(-1, 3)
     assert np.all(np.abs(states[:, 1]) <= 2.0 + 1e-3)  # soft speed bound held
     np.testing.assert_allclose(u[1:], 0.0, atol=1e-4)   # y, z: no error, no action
+
+
+def test_disturbance_integrators_ignore_errors_larger_than_max_error():
+    """An estimator jump must not wind the integrators up."""
+    gains, limits = DisturbanceGains(), DisturbanceLimits(max_error=1.0)
+    state = disturbance.integrate(np.zeros(DISTURBANCE.size), np.array([5.0, 0.0, -3.0]), 0.0,
+                                  0.01, gains, limits)
+    np.testing.assert_array_equal(state, 0.0)

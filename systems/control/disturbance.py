@@ -10,7 +10,10 @@ with e_p = r - r_d. The x, y parts are the disturbance forces the controllers co
 heading rotation leaves z alone, their sum is one integrator, kept here as the mass difference
 delta_m directly, with the sign that makes a vehicle that sags below its reference heavier (the
 printed M(35)/(37) leave that sign to the reader). Each integrator is clamped to the limits of
-`DisturbanceLimits` (anti-windup).
+`DisturbanceLimits` (anti-windup), and an error larger than `max_error` (horizontal norm, or the
+vertical part) is not integrated at all: the integrators learn small steady forces, not the
+transient of an estimator jump (a 5 m jump would otherwise wind them to their limits within a
+second and push the vehicle away at 7 m/s, measured).
 """
 import dataclasses as dc
 
@@ -39,6 +42,7 @@ class DisturbanceLimits:
     world: float = bounded(10.0, 0.0, 1000.0, "N")    # per axis
     body: float = bounded(10.0, 0.0, 1000.0, "N")     # per axis
     mass: float = bounded(2.0, 0.0, 1000.0, "kg")     # |delta_m|
+    max_error: float = bounded(1.0, 0.0, 1000.0, "m")  # larger errors are not integrated
 
 
 def heading_matrix(eta: float) -> np.ndarray:
@@ -52,10 +56,12 @@ def integrate(state: np.ndarray, e_p: np.ndarray, eta: float, dt: float,
     """One step of M(35) and of the mass difference; returns the new DISTURBANCE vector."""
     L = DISTURBANCE
     new = np.array(state, dtype=float)
-    world = L.get(state, "world") + np.asarray(gains.world) * e_p[:2] * dt
-    body = L.get(state, "body_sum") + np.asarray(gains.body) * (heading_matrix(eta).T @ e_p)[:2] \
-        * dt
-    mass = L.get(state, "mass_difference") - gains.mass * e_p[2] * dt
+    horizontal = float(np.linalg.norm(e_p[:2]) <= limits.max_error)
+    vertical = float(abs(e_p[2]) <= limits.max_error)
+    world = L.get(state, "world") + horizontal * np.asarray(gains.world) * e_p[:2] * dt
+    body = L.get(state, "body_sum") + horizontal * np.asarray(gains.body) \
+        * (heading_matrix(eta).T @ e_p)[:2] * dt
+    mass = L.get(state, "mass_difference") - vertical * gains.mass * e_p[2] * dt
     new[L.slice("world")] = np.clip(world, -limits.world, limits.world)
     new[L.slice("body_sum")] = np.clip(body, -limits.body, limits.body)
     new[L.slice("mass_difference")] = np.clip(mass, -limits.mass, limits.mass)

@@ -43,9 +43,10 @@ class Se3Controller(ForceController):
     """M(38). Ports as `ForceController`."""
 
     def __init__(self, vehicle: VehicleModel, so3: So3Params, params: Se3Params,
-                 limits: DisturbanceLimits, period: float = 0.01):
+                 limits: DisturbanceLimits, period: float = 0.01, max_prediction: float = 0.1):
         gains = params.active
-        super().__init__(vehicle, so3, gains.disturbance, limits, period)
+        super().__init__(vehicle, so3, gains.disturbance, limits, period,
+                         max_prediction=max_prediction)
         self._k_p = np.asarray(gains.k_p, dtype=float)
         self._k_v = np.asarray(gains.k_v, dtype=float)
 
