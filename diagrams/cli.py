@@ -148,7 +148,8 @@ def _hil(args) -> int:
         result = run_hil(args.connect, args.mission, options, params, duration=args.duration,
                          seed=args.seed, run_dir=args.run_dir,
                          frame_address=_frame_address(args.frames, args.connect),
-                         wait=args.wait, realtime_rate=args.realtime_rate)
+                         wait=args.wait, realtime_rate=args.realtime_rate,
+                         follow_autopilot_clock=args.follow_autopilot_clock)
     except (MavlinkConnectionError, LinkTimeout, MissionUnavailable, ValueError) as e:
         print(f"alight hil: {e}", file=sys.stderr)
         return 2
@@ -214,6 +215,9 @@ def make_parser() -> argparse.ArgumentParser:
                      help="how long to wait for the flight controller (default 10 s)")
     hil.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
                      help="only against `alight sim-autopilot --realtime-rate R`: run slowed")
+    hil.add_argument("--follow-autopilot-clock", action="store_true",
+                     help="simulated autopilot only: also pace on its clock, so that a "
+                          "simulation falling behind real time slows the onboard side with it")
     hil.add_argument("--seed", type=int, default=0, help="seed of every random source")
     hil.add_argument("--run-dir", help="run folder to write (default runs/<time>-hil-<mission>)")
     hil.set_defaults(run=_hil)
