@@ -9,6 +9,10 @@ COMMANDS = {
     "sysid": "identify the linear model L(11)-(12) from excitation flights or a PX4 log",
     "sim-autopilot": "serve the simulated vehicle in real time as a PX4 autopilot over MAVLink",
     "hil": "fly the onboard diagram against a MAVLink flight controller (real or simulated)",
+    "track": "fly the flight-stack paper's experiments (steps, 5 m circle, estimator noise or "
+             "jump) with the SE(3) or MPC force-feedback controller",
+    "thrust-curve": "hover the simulated vehicle at several masses and fit the thrust curve "
+                    "M(32)",
 }
 
 
@@ -157,6 +161,50 @@ def _hil(args) -> int:
     return 1 if result.report.error else 0
 
 
+def _track(args) -> int:
+    from alight.diagrams.simulation import make_meshcat
+    from alight.diagrams.track import TrackExperiment, fly_track, score
+    try:
+        experiment = TrackExperiment(
+            trajectory=args.trajectory, controller=args.controller, radius=args.radius,
+            speed=args.speed, heading=args.heading, laps=args.laps,
+            estimator_noise=args.estimator_noise, estimator_jump=args.estimator_jump)
+    except ValueError as e:
+        print(f"alight track: {e}", file=sys.stderr)
+        return 2
+    from alight.systems.params import validate
+    validate(experiment, "command line")
+    config = _vehicle_config(args)
+    meshcat = make_meshcat(args.meshcat, args.record)
+    run = fly_track(config, experiment, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
+                    record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
+    print("\n".join(score(run).lines()))
+    print(f"run folder            {run.path} (plots: track.png)")
+    _keep_meshcat_open(args)
+    return 0
+
+
+def _thrust_curve(args) -> int:
+    from pathlib import Path
+    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.thrust_fit import run_thrust_curve
+    from alight.systems.plant.hexacopter import load_hexacopter_params
+    from alight.systems.thrust_curve import ThrustCurve
+    masses = [float(m) for m in args.masses.split(",")]
+    if len(masses) < 2 or min(masses) <= 0:
+        print("alight thrust-curve: give at least two positive masses, e.g. 2.0,2.5,3.0",
+              file=sys.stderr)
+        return 2
+    config = _vehicle_config(args)
+    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("thrust-curve", args.seed)
+    fit = run_thrust_curve(config, masses, args.seed, run_dir)
+    rotors = load_hexacopter_params(config.vehicle)
+    print("\n".join(fit.lines(ThrustCurve.from_rotors(len(rotors.rotors), rotors.max_thrust,
+                                                      rotors.idle))))
+    print(f"run folders           {run_dir}")
+    return 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="alight", description="GPS-free multirotor autonomy as Drake diagrams.",
@@ -197,6 +245,25 @@ def make_parser() -> argparse.ArgumentParser:
                            help="slow the simulation to R x real time, R in (0, 1] (a loaded "
                                 "machine; run `alight hil` with the same R)")
     autopilot.set_defaults(run=_sim_autopilot)
+    track = sub.add_parser("track", help=COMMANDS["track"], description=COMMANDS["track"])
+    _add_common(track)
+    track.add_argument("--trajectory", choices=["circle", "steps", "hover"], default="circle")
+    track.add_argument("--controller", choices=["se3", "mpc"], default="se3")
+    track.add_argument("--radius", type=float, default=5.0, help="circle radius [m]")
+    track.add_argument("--speed", type=float, default=7.0, help="circle speed [m/s]")
+    track.add_argument("--heading", choices=["center", "constant"], default="center")
+    track.add_argument("--laps", type=float, default=2.0, help="circle laps (the last is scored)")
+    track.add_argument("--estimator-noise", type=float, default=0.0, metavar="SIGMA",
+                       help="white noise on the estimated position [m] and velocity [m/s]")
+    track.add_argument("--estimator-jump", type=float, default=0.0, metavar="METRES",
+                       help="jump of the estimated position along x, 2 s into the experiment")
+    track.set_defaults(run=_track)
+    thrust = sub.add_parser("thrust-curve", help=COMMANDS["thrust-curve"],
+                            description=COMMANDS["thrust-curve"])
+    _add_common(thrust)
+    thrust.add_argument("--masses", default="2.0,2.5,3.0,3.5", metavar="KG,KG,...",
+                        help="simulated vehicle masses to hover with")
+    thrust.set_defaults(run=_thrust_curve)
     hil = sub.add_parser("hil", help=COMMANDS["hil"], description=COMMANDS["hil"])
     hil.add_argument("--connect", required=True,
                      help="udp:HOST:PORT, udpin:HOST:PORT, serial:/dev/ttyACM0:921600, ...")
