@@ -155,3 +155,39 @@ class SimAutopilotProcess:
         except subprocess.TimeoutExpired:
             self.process.kill()
             return self.process.wait()
+
+
+class NullTransport:
+    """A link transport that sends nowhere (tests that feed the reader directly)."""
+
+    def write(self, buf):
+        pass
+
+    def close(self):
+        pass
+
+
+class FrameEncoder:
+    """Encodes frames as a system/component would send them (its own sequence numbers)."""
+
+    def __init__(self, system: int, component: int):
+        self._data = bytearray()
+        self.mav = mavlink.MAVLink(self, system, component)
+
+    def write(self, buf):
+        self._data += buf
+
+    def frame(self, message) -> bytes:
+        self._data = bytearray()
+        self.mav.send(message)
+        return bytes(self._data)
+
+
+def lock_clock(link, autopilot: FrameEncoder, tc1_ns: int = 5_000_000_000) -> bytes:
+    """One genuine TIMESYNC round trip fed to `link` (no transport); returns the reply's bytes."""
+    ts1 = link.clock.scaled_ns()
+    link.timesync.request(ts1)
+    reply = autopilot.frame(autopilot.mav.timesync_encode(tc1_ns, ts1))
+    link.feed(reply)
+    assert link.timesync.locked
+    return reply

@@ -13,40 +13,10 @@ from alight.hw.link import LinkParams, MavlinkLink
 from alight.hw.mavlink_vehicle import LINK_STATUS, MavlinkVehicleParams, make_mavlink_vehicle
 from alight.hw.realtime import WallClock
 from alight.systems.boundary import FC_COMMAND, FC_STATUS
+from mavlink_fake import FrameEncoder, NullTransport, lock_clock
 
 DATAGRAMS = 3000   # of 1-7 frames each: 12,000 frames on average
 SPECIALS = [0.0, np.nan, np.inf, -np.inf, 1e30, -1e30, 1e-40]
-
-
-class _Bytes:
-    def __init__(self):
-        self.data = bytearray()
-
-    def write(self, buf):
-        self.data += buf
-
-
-class _NullTransport:
-    """The link's transport: what the link sends (heartbeats, TIMESYNC answers) goes nowhere."""
-
-    def write(self, buf):
-        pass
-
-    def close(self):
-        pass
-
-
-class Sender:
-    """Encodes frames as a system/component would send them (its own sequence numbers)."""
-
-    def __init__(self, system, component):
-        self._out = _Bytes()
-        self.mav = mavlink.MAVLink(self._out, system, component)
-
-    def frame(self, message) -> bytes:
-        self._out.data.clear()
-        self.mav.send(message)
-        return bytes(self._out.data)
 
 
 class FrameFuzzer:
@@ -54,8 +24,8 @@ class FrameFuzzer:
 
     def __init__(self, seed):
         self.rng = np.random.default_rng(seed)
-        self.autopilot = Sender(1, 1)
-        self.stranger = Sender(7, 1)
+        self.autopilot = FrameEncoder(1, 1)
+        self.stranger = FrameEncoder(7, 1)
         self.history: list[bytes] = []
         self.kinds: dict[str, int] = {}
         self.t_us = 0
@@ -156,7 +126,7 @@ class FreshCommand(LeafSystem):
 
 
 def fuzz(datagrams: bool, seed: int):
-    link = MavlinkLink(_NullTransport(), LinkParams(), WallClock(), datagrams=datagrams)
+    link = MavlinkLink(NullTransport(), LinkParams(), WallClock(), datagrams=datagrams)
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link,
                                                                      MavlinkVehicleParams()))
@@ -168,11 +138,7 @@ def fuzz(datagrams: bool, seed: int):
     vehicle_context = vehicle.GetMyContextFromRoot(context)
     # Lock the clock with one genuine TIMESYNC round trip, as on a real link.
     fuzzer = FrameFuzzer(seed)
-    ts1 = link.clock.scaled_ns()
-    link.timesync.request(ts1)
-    sync = fuzzer.autopilot.frame(fuzzer.autopilot.mav.timesync_encode(5_000_000_000, ts1))
-    link.feed(sync)
-    assert link.timesync.locked
+    sync = lock_clock(link, fuzzer.autopilot)
     fed = len(sync)
     frames = 0
     non_finite = []

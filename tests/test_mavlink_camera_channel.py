@@ -1,0 +1,110 @@
+"""The local camera-frame channel (camera images do not travel over MAVLink): any `CameraFrame`
+(image, depth, calibration, geometric keypoints) crosses from the simulated autopilot's process to
+the MAVLink vehicle's camera ports intact, newest first, only to a subscriber with the key, with
+its stamp mapped from the autopilot's clock to the onboard clock."""
+import time
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from alight.hw.frame_channel import FramePublisher, FrameSubscriber
+from alight.hw.link import LinkParams, MavlinkLink
+from alight.hw.mavlink_vehicle import MavlinkVehicleParams, make_mavlink_vehicle
+from alight.hw.realtime import WallClock
+from alight.systems.boundary import CameraFrame
+from mavlink_fake import FrameEncoder, NullTransport, lock_clock
+
+RNG = np.random.default_rng(3)
+
+
+def synthetic_frame(stamp: float) -> CameraFrame:
+    return CameraFrame(
+        stamp=stamp, image=RNG.integers(0, 256, size=(480, 640), dtype=np.uint8),
+        depth=RNG.uniform(0.5, 10.0, size=(480, 640)).astype(np.float32),
+        calibration={"K": np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]]),
+                     "distortion": np.zeros(5), "width": 640, "height": 480},
+        keypoints=RNG.uniform(0, 640, size=(12, 2)), keypoint_ids=np.arange(12))
+
+
+def wait_for(condition, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+@pytest.fixture
+def channel(tmp_path):
+    publisher = FramePublisher(str(tmp_path / "frames.sock"))
+    subscriber = FrameSubscriber(publisher.address, retry=0.05)
+    assert wait_for(lambda: publisher.connected)
+    yield publisher, subscriber
+    subscriber.close()
+    publisher.close()
+
+
+def assert_same_frame(a: CameraFrame, b: CameraFrame):
+    assert a.stamp == b.stamp
+    for field in ("image", "depth", "keypoints", "keypoint_ids"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    np.testing.assert_array_equal(a.calibration["K"], b.calibration["K"])
+    assert a.calibration["width"] == b.calibration["width"]
+
+
+def test_a_camera_frame_crosses_the_channel_intact(channel):
+    publisher, subscriber = channel
+    frame = synthetic_frame(1.25)
+    publisher.publish("down_image", frame)
+    assert wait_for(lambda: subscriber.latest("down_image") is not None)
+    assert_same_frame(subscriber.latest("down_image"), frame)
+    assert subscriber.latest("rgbd") is None
+
+
+def test_a_slow_reader_gets_the_newest_frame_never_an_old_one(channel):
+    publisher, subscriber = channel
+    frames = [synthetic_frame(0.05 * k) for k in range(40)]
+    for frame in frames:
+        publisher.publish("rgbd", frame)
+    assert wait_for(lambda: subscriber.latest("rgbd") is not None
+                    and subscriber.latest("rgbd").stamp == frames[-1].stamp)
+    assert_same_frame(subscriber.latest("rgbd"), frames[-1])
+    counters = publisher.counters
+    assert counters.published == 40 and counters.sent + counters.replaced == 40
+    assert subscriber.counters.received == counters.sent and subscriber.counters.invalid == 0
+
+
+def test_a_subscriber_without_the_key_gets_nothing(tmp_path):
+    publisher = FramePublisher(str(tmp_path / "frames.sock"))
+    intruder = FrameSubscriber(publisher.address, authkey=b"wrong", retry=0.05)
+    try:
+        time.sleep(0.5)
+        publisher.publish("down_image", synthetic_frame(1.0))
+        time.sleep(0.5)
+        assert intruder.latest("down_image") is None and not publisher.connected
+    finally:
+        intruder.close()
+        publisher.close()
+
+
+def test_the_vehicle_camera_port_holds_the_frame_on_the_onboard_clock(channel):
+    publisher, subscriber = channel
+    link = MavlinkLink(NullTransport(), LinkParams(), WallClock(), datagrams=True)
+    lock_clock(link, FrameEncoder(1, 1), tc1_ns=100_000_000_000)  # the autopilot is at 100 s
+    t_sync = link.clock.now()
+    vehicle = make_mavlink_vehicle(link, MavlinkVehicleParams(), frames=subscriber)
+    simulator = Simulator(vehicle)
+    context = simulator.get_mutable_context()
+    vehicle.GetInputPort("fc_command").FixValue(context, np.zeros(11))
+    frame = synthetic_frame(100.5)  # autopilot time
+    publisher.publish("down_image", frame)
+    assert wait_for(lambda: subscriber.latest("down_image") is not None)
+    simulator.AdvanceTo(0.05)
+    port = vehicle.GetOutputPort("down_image").Eval(context)
+    assert port.stamp == pytest.approx(link.to_local(100.5)) and port.valid
+    assert port.stamp == pytest.approx(t_sync + 0.5, abs=0.01)  # 0.5 s after the sync reply
+    np.testing.assert_array_equal(port.image, frame.image)
+    np.testing.assert_array_equal(port.keypoints, frame.keypoints)
+    assert not vehicle.GetOutputPort("rgbd").Eval(context).valid
