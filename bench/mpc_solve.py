@@ -11,6 +11,7 @@ OsqpSolver, which sets OSQP up cold on every solve.
     python bench/mpc_solve.py [--horizons 2 20 40] [--seed 0]
 """
 import argparse
+import os
 import dataclasses as dc
 import tempfile
 from pathlib import Path
@@ -78,7 +79,8 @@ def main() -> None:
         flown = status["compute_time"][status["valid"] > 0.5].to_numpy()
     period = load_linear_mpc().period
     print(f"recorded flight: {len(ticks)} controller ticks at {1 / period:.0f} Hz, "
-          f"landed {run.metadata['landed']}")
+          f"landed {run.metadata['landed']}; load average {os.getloadavg()[0]:.1f} on "
+          f"{os.cpu_count()} CPUs (timings spread with load)")
     print(f"{'':28s} {'mean':>8s} {'std':>8s} {'p99':>8s} {'max':>8s} {'/709.53':>8s}   [us]")
     print(row(f"in flight (N={load_linear_mpc().horizon_steps}, default)", flown))
     means = {}

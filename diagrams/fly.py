@@ -16,6 +16,7 @@ from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.arm_gate import ArmGate
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpc, LinearMpcParams
+from alight.systems.mission.scripted_reference import ScriptedReference
 from alight.systems.mission.waypoints import Phase, WaypointMission, WaypointMissionParams
 from alight.systems.params import load_params
 from alight.systems.rotations import tilt_deg
@@ -109,6 +110,23 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
         "command": "fly", "seed": seed, "duration": duration, "config": config,
         "waypoints": waypoints, "landed": bool(landed(simulator.get_context())),
         "mpc": load_linear_mpc(), "model": load_linear_model()})
+    return RunLog(run_dir)
+
+
+def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: int = 0,
+                  mpc_params: LinearMpcParams | None = None, estimate_filter=None) -> RunLog:
+    """Arms, then follows the scripted reference `fn(t) -> (p_W, v_W)` with the MPC for
+    `duration` s (experiments, tests and benchmarks of the closed loop)."""
+    builder = DiagramBuilder()
+    reference = builder.AddNamedSystem("reference", ScriptedReference(fn))
+    loop = add_mpc_loop(builder, config, reference.GetOutputPort("reference"),
+                        reference.GetOutputPort("arm"), mpc_params=mpc_params,
+                        estimate_filter=estimate_filter)
+    loggers = add_mpc_logging(builder, loop, reference.GetOutputPort("reference"))
+    simulator = simulate(builder.Build(), duration, seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {
+        "command": "fly_reference", "seed": seed, "duration": duration, "config": config,
+        "mpc": mpc_params or load_linear_mpc()})
     return RunLog(run_dir)
 
 

@@ -6,7 +6,6 @@ mocap odometry; the fit L(11)-(12) is reported as VAF per signal on the validati
 like L Fig. 6, and written to a YAML file the MPC reads. PX4 logs: the attitude model L(12) from
 `vehicle_attitude_setpoint` and `vehicle_attitude`.
 """
-import copy
 import dataclasses as dc
 from pathlib import Path
 
@@ -22,8 +21,7 @@ from alight.diagrams.simulation import simulate
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.control.excitation_pilot import (ExcitationParams, ExcitationPilot,
                                                      ExcitationSegment)
-from alight.systems.control.identification import (AxisData, IdentificationError,
-                                                   check_excitation,
+from alight.systems.control.identification import (AxisData, check_excitation,
                                                    damped_velocity_windows, fit_attitude_axis,
                                                    fit_damping, simulate_attitude, vaf)
 from alight.systems.control.linear_model import (GRAVITY, LinearModelParams, euler_pitch_roll_yaw,

@@ -5,12 +5,10 @@ from dataclasses import replace as dc_replace
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
 from scipy.signal import cont2discrete
 
-from alight.diagrams.fly import add_mpc_loop, add_mpc_logging, load_linear_model, load_linear_mpc
-from alight.diagrams.run_log import RunLog, write_run_folder
-from alight.diagrams.simulation import simulate
+from alight.diagrams.fly import fly_reference, load_linear_model, load_linear_mpc
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
                                      STATE_ESTIMATE)
 from alight.systems.control.linear_model import (continuous_model, discretize,
@@ -18,37 +16,10 @@ from alight.systems.control.linear_model import (continuous_model, discretize,
 from alight.systems.control.linear_mpc import LinearMpc, LinearMpcQp, MpcReason
 from alight.systems.control.persistent_osqp import QpResult
 from alight.systems.plant.wind import WindParams
+from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults
 from conftest import tilt_deg
 
 HOVER = np.array([0.0, 0.0, 3.0])
-
-
-class ScriptedReference(LeafSystem):
-    """Reference p(t), v(t) from a function, and an arm request that arms at low thrust first."""
-
-    def __init__(self, fn):
-        super().__init__()
-        self._fn = fn
-        self.DeclareVectorOutputPort("reference", REFERENCE.size, self._calc)
-        self.DeclareVectorOutputPort("arm", 2, lambda c, o: o.SetFromVector(
-            [1.0, float(c.get_time() > 0.5)]))
-
-    def _calc(self, context, output):
-        p, v = self._fn(context.get_time())
-        output.SetFromVector(REFERENCE.pack(stamp=context.get_time(), p=p, v=v, a=np.zeros(3),
-                                            j=np.zeros(3), heading=0.0, heading_rate=0.0))
-
-
-def fly(config, fn, duration, run_dir, mpc_params=None, estimate_filter=None, seed=0) -> RunLog:
-    builder = DiagramBuilder()
-    reference = builder.AddSystem(ScriptedReference(fn))
-    loop = add_mpc_loop(builder, config, reference.GetOutputPort("reference"),
-                        reference.GetOutputPort("arm"), mpc_params=mpc_params,
-                        estimate_filter=estimate_filter)
-    loggers = add_mpc_logging(builder, loop, reference.GetOutputPort("reference"))
-    simulator = simulate(builder.Build(), duration, seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {"seed": seed})
-    return RunLog(run_dir)
 
 
 def hover_then(fn, t0):
@@ -177,7 +148,7 @@ def _after(run, stream, t0):
 @pytest.fixture(scope="module")
 def step_run(vehicle_config, tmp_path_factory):
     step = hover_then(lambda t: (HOVER + [5.0, 0, 0], np.zeros(3)), 8.0)
-    return fly(vehicle_config, step, 16.0, tmp_path_factory.mktemp("runs") / "step")
+    return fly_reference(vehicle_config, step, 16.0, tmp_path_factory.mktemp("runs") / "step")
 
 
 def test_position_step_settles_with_bounded_overshoot_and_tilt(step_run):
@@ -204,7 +175,7 @@ def test_moving_reference_lag_with_and_without_velocity(vehicle_config, tmp_path
     moving = hover_then(lambda t: (HOVER + [speed * t, 0, 0],
                                    np.array([speed, 0, 0]) if with_velocity else np.zeros(3)),
                         6.0)
-    run = fly(vehicle_config, moving, 16.0, tmp_path)
+    run = fly_reference(vehicle_config, moving, 16.0, tmp_path)
     truth = _after(run, "ground_truth", 12.0)
     lag = (HOVER[0] + speed * (truth["time"] - 6.0) - truth["p_WB_0"]).to_numpy()
     if bound is not None:
@@ -217,33 +188,21 @@ def test_moving_reference_lag_with_and_without_velocity(vehicle_config, tmp_path
 def test_hover_in_15_kmh_gusty_wind_stays_within_radius(vehicle_config, tmp_path):
     config = copy.deepcopy(vehicle_config)
     config.wind = WindParams(mean_speed=15 / 3.6, direction=45.0, gust_std=0.8)
-    run = fly(config, lambda t: (HOVER, np.zeros(3)), 25.0, tmp_path, seed=2)
+    run = fly_reference(config, lambda t: (HOVER, np.zeros(3)), 25.0, tmp_path, seed=2)
     truth = _after(run, "ground_truth", 10.0)
     error = np.linalg.norm(run.field("ground_truth", "p_WB").to_numpy()[-len(truth):] - HOVER,
                            axis=1)
     assert error.max() < 1.0, f"max distance {error.max():.2f} m"
 
 
-class EstimateJump(LeafSystem):
-    """Adds `jump` to the estimated position from time t0 (a relocalization jump)."""
-
-    def __init__(self, jump, t0):
-        super().__init__()
-        self._jump, self._t0 = np.asarray(jump), t0
-        self._in = self.DeclareVectorInputPort("in", STATE_ESTIMATE.size)
-        self.DeclareVectorOutputPort("out", STATE_ESTIMATE.size, self._calc)
-
-    def _calc(self, context, output):
-        value = self._in.Eval(context).copy()
-        if context.get_time() >= self._t0:
-            value[STATE_ESTIMATE.slice("p_EB")] += self._jump
-        output.SetFromVector(value)
-
-
 def _jump_filter(builder, port):
-    jump = builder.AddSystem(EstimateJump([5.0, 0.0, 0.0], 8.0))
-    builder.Connect(port, jump.get_input_port())
-    return jump.get_output_port()
+    """A 5 m relocalization jump of the estimated position at t = 8 s (M Fig. 13)."""
+    faults = builder.AddSystem(EstimateFaults(EstimateFaultParams(jump=[5.0, 0.0, 0.0],
+                                                                  jump_time=8.0)))
+    no_noise = builder.AddSystem(ConstantVectorSource(np.zeros(6)))
+    builder.Connect(no_noise.get_output_port(), faults.GetInputPort("noise"))
+    builder.Connect(port, faults.GetInputPort("state_estimate"))
+    return faults.GetOutputPort("state_estimate")
 
 
 @pytest.mark.parametrize("soft", [True, False])
@@ -253,8 +212,8 @@ def test_estimate_jump_soft_constraints_bound_speed_and_tilt(vehicle_config, tmp
     params.max_tilt = 12.0
     if not soft:
         params.slack_penalty = 0.0  # constraints priced at nothing: the unconstrained MPC
-    run = fly(vehicle_config, lambda t: (HOVER, np.zeros(3)), 16.0, tmp_path, params,
-              _jump_filter)
+    run = fly_reference(vehicle_config, lambda t: (HOVER, np.zeros(3)), 16.0, tmp_path,
+                        mpc_params=params, estimate_filter=_jump_filter)
     truth = _after(run, "ground_truth", 8.0)
     speed = np.linalg.norm(truth[["v_WB_0", "v_WB_1"]].to_numpy(), axis=1).max()
     tilt = tilt_deg(run.field("ground_truth", "q_WB").to_numpy()[-len(truth):]).max()

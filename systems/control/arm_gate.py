@@ -1,5 +1,4 @@
 """Applies the mission's arm request to a controller's command (disarmed: zero thrust, arm 0)."""
-import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import FC_COMMAND

@@ -91,7 +91,7 @@ class LinearMpcQp:
     """The QP L(26)-(27), built once as a MathematicalProgram; `solve(x0, s_y, s_u)` per tick."""
 
     def __init__(self, model: LinearModelParams, p: LinearMpcParams):
-        N, n, m = p.horizon_steps, NUM_STATES, NUM_INPUTS
+        N, m = p.horizon_steps, NUM_INPUTS
         self.N = N
         Ad, Bd = discretize(*continuous_model(model), p.period)
         self.Phi, self.Gamma = prediction_matrices(Ad, Bd, N)
@@ -142,7 +142,7 @@ class LinearMpcQp:
         self.solver = OsqpSolver()
         self.options = SolverOptions()
         for name, value in (("eps_abs", p.osqp_eps), ("eps_rel", p.osqp_eps),
-                            ("max_iter", 4000), ("polishing", 1)):
+                            ("max_iter", 4000), ("polishing", 0)):
             self.options.SetOption(OsqpSolver.id(), name, value)
 
     def update(self, x0: np.ndarray, s_y: np.ndarray, s_u: np.ndarray,

@@ -31,7 +31,7 @@ class PersistentOsqp:
     """`PersistentOsqp(prog, eps=..., max_iter=...)`; `solve()` after updating the bindings."""
 
     def __init__(self, prog: MathematicalProgram, eps: float = 1e-4, max_iter: int = 4000,
-                 polishing: bool = True):
+                 polishing: bool = False):
         self.prog = prog
         costs = len(prog.quadratic_costs()) + len(prog.linear_costs())
         if len(prog.GetAllConstraints()) != len(self._constraints()) \
