@@ -3,8 +3,9 @@ time, with the real-time runner's overrun reports and final safe command.
 
 The onboard side is a mission: one function per `--mission` that adds its systems to the builder,
 connects them to the vehicle's ports and returns its `fc_command` port and its duration. Today
-`hover` flies the scripted hover profile (diagrams/hover.py); `fly` and `land` plug in here as one
-entry each when the position MPC and the landing mission exist.
+`hover` flies the scripted hover profile (diagrams/hover.py); `fly` (the position MPC of
+diagrams/fly.py) and `land` plug in here as one entry each of MISSIONS once an onboard position
+estimate (VIO, the estimator bank) exists: over MAVLink there is no ground truth for mocap.
 """
 import dataclasses as dc
 from pathlib import Path
@@ -49,8 +50,9 @@ class MissionUnavailable(RuntimeError):
 
 
 def _unavailable(name: str, what: str) -> Callable:
-    message = f"mission '{name}' is not available yet: it needs {what}, which is not built " \
-              f"(over MAVLink there is no ground truth to stand in); use --mission hover"
+    message = f"mission '{name}' is not available over MAVLink yet: it needs {what} " \
+              f"(the simulation's mocap stand-in reads ground truth, which a MAVLink vehicle " \
+              f"does not have); use --mission hover"
 
     def mission(builder, vehicle, options):
         raise MissionUnavailable(message)
@@ -60,8 +62,10 @@ def _unavailable(name: str, what: str) -> Callable:
 
 MISSIONS: dict[str, Callable[[DiagramBuilder, object, MissionOptions], Mission]] = {
     "hover": hover_mission,
-    "fly": _unavailable("fly", "the position MPC and its trackers"),
-    "land": _unavailable("land", "the landing mission (target detection, EKF, landing MPC)"),
+    "fly": _unavailable("fly", "an onboard position estimate for the position MPC of "
+                               "diagrams/fly.py (VIO or the estimator bank)"),
+    "land": _unavailable("land", "the landing mission (target detection, EKF, landing MPC) and "
+                                 "an onboard position estimate"),
 }
 
 
