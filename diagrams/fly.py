@@ -12,7 +12,7 @@ from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_r
 from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.diagrams.simulation import simulate
 from alight.models import model_path
-from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE
+from alight.systems.boundary import CONTROLLER_STATUS, FC_STATUS, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.arm_gate import ArmGate
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpc, LinearMpcParams
@@ -100,10 +100,21 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
     builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
     loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
     phase = builder.ExportOutput(mission_system.GetOutputPort("phase"), "phase")
+    status = builder.ExportOutput(loop.vehicle.GetOutputPort("fc_status"), "fc_status")
     diagram = builder.Build()
-    landed = lambda context: diagram.get_output_port(phase).Eval(context)[0] == Phase.LANDED
+
+    def landed(context) -> bool:  # the mission has landed and the flight controller disarmed
+        return diagram.get_output_port(phase).Eval(context)[0] == Phase.LANDED and \
+            FC_STATUS.get(diagram.get_output_port(status).Eval(context), "armed") < 0.5
+    landed_at = []
+
+    def done(context) -> bool:  # 1 s after landing, so that the logs show the vehicle at rest
+        if landed(context) and not landed_at:
+            landed_at.append(context.get_time())
+        return bool(landed_at) and context.get_time() >= landed_at[0] + 1.0
+
     simulator = simulate(diagram, _mission_duration(waypoints, max_duration), seed, meshcat,
-                         record, realtime_rate, stop_when=landed)
+                         record, realtime_rate, stop_when=done)
     duration = simulator.get_context().get_time()
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("fly", seed)
     write_run_folder(run_dir, loggers, simulator.get_context(), {
