@@ -52,14 +52,22 @@ class MpcLoop:
     mpc_period: float
 
 
+def mocap_odometry(params: MocapParams | None = None):
+    """The default odometry source for `add_mpc_loop`: mocap (true pose + noise + latency)."""
+    return lambda builder, vehicle: add_mocap(builder, vehicle.GetOutputPort("ground_truth"),
+                                              params or MocapParams())
+
+
 def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, meshcat=None,
                  mpc_params: LinearMpcParams | None = None,
-                 model: LinearModelParams | None = None, mocap: MocapParams | None = None,
+                 model: LinearModelParams | None = None, odometry=None,
                  estimate_filter=None) -> MpcLoop:
-    """Simulated vehicle + mocap odometry + linear MPC (+ arm gate) following `reference_port`.
+    """Simulated vehicle + odometry + linear MPC (+ arm gate) following `reference_port`.
+    `odometry(builder, vehicle) -> STATE_ESTIMATE port` builds the state estimate from the vehicle
+    diagram's ports (default `mocap_odometry()`; VIO and the estimator bank plug in here);
     `estimate_filter(builder, port) -> port` may alter the estimate (fault injection in tests)."""
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
-    estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
+    estimate = (odometry or mocap_odometry())(builder, vehicle)
     if estimate_filter is not None:
         estimate = estimate_filter(builder, estimate)
     mpc_params = mpc_params or load_linear_mpc()
@@ -89,14 +97,15 @@ def add_mpc_logging(builder, loop: MpcLoop, reference_port) -> RunLoggers:
 
 def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0,
                   run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
-                  mission: WaypointMissionParams | None = None, max_duration: float = 300.0
-                  ) -> RunLog:
-    """Takes off, visits the waypoints with the linear MPC, lands and disarms."""
+                  mission: WaypointMissionParams | None = None, max_duration: float = 300.0,
+                  odometry=None) -> RunLog:
+    """Takes off, visits the waypoints with the linear MPC, lands and disarms (`odometry` as in
+    `add_mpc_loop`)."""
     builder = DiagramBuilder()
     mission_system = WaypointMission(waypoints, mission or WaypointMissionParams())
     builder.AddNamedSystem("mission", mission_system)
     loop = add_mpc_loop(builder, config, mission_system.GetOutputPort("reference"),
-                        mission_system.GetOutputPort("arm"), meshcat)
+                        mission_system.GetOutputPort("arm"), meshcat, odometry=odometry)
     builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
     loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
     phase = builder.ExportOutput(mission_system.GetOutputPort("phase"), "phase")
