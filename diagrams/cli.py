@@ -144,6 +144,7 @@ def _hil(args) -> int:
     from alight.hw.hil import MissionOptions, MissionUnavailable, run_hil
     from alight.hw.link import LinkTimeout
     from alight.hw.mavlink_vehicle import load_mavlink_vehicle_params
+    from alight.hw.opencv_camera import CameraError
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     params = load_mavlink_vehicle_params(args.link_config)
     options = MissionOptions(vehicle_config=load_sim_vehicle_config(args.config),
@@ -153,8 +154,10 @@ def _hil(args) -> int:
                          seed=args.seed, run_dir=args.run_dir,
                          frame_address=_frame_address(args.frames, args.connect),
                          wait=args.wait, realtime_rate=args.realtime_rate,
-                         follow_autopilot_clock=args.follow_autopilot_clock)
-    except (MavlinkConnectionError, LinkTimeout, MissionUnavailable, ValueError) as e:
+                         follow_autopilot_clock=args.follow_autopilot_clock,
+                         down_camera=args.down_camera)
+    except (MavlinkConnectionError, LinkTimeout, MissionUnavailable, ValueError,
+            CameraError) as e:
         print(f"alight hil: {e}", file=sys.stderr)
         return 2
     print("\n".join(result.lines()))
@@ -285,6 +288,9 @@ def make_parser() -> argparse.ArgumentParser:
     hil.add_argument("--follow-autopilot-clock", action="store_true",
                      help="simulated autopilot only: also pace on its clock, so that a "
                           "simulation falling behind real time slows the onboard side with it")
+    hil.add_argument("--down-camera", metavar="DEVICE",
+                     help="a real down camera through OpenCV (0, /dev/video0, a pipeline, a "
+                          "video file), calibrated by models/down_camera.yaml")
     hil.add_argument("--seed", type=int, default=0, help="seed of every random source")
     hil.add_argument("--run-dir", help="run folder to write (default runs/<time>-hil-<mission>)")
     hil.set_defaults(run=_hil)

@@ -78,11 +78,13 @@ def check_mission(mission: str) -> None:
 
 
 def make_hil_diagram(link: MavlinkLink, params: MavlinkVehicleParams, mission: str,
-                     options: MissionOptions, frames: FrameSubscriber | None = None):
+                     options: MissionOptions, frames: FrameSubscriber | None = None,
+                     cameras: dict | None = None):
     """(diagram, run loggers, mission duration): the MAVLink vehicle driven by `mission`."""
     check_mission(mission)
     builder = DiagramBuilder()
-    vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames))
+    vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames,
+                                                                     cameras))
     onboard = MISSIONS[mission](builder, vehicle, options)
     builder.Connect(onboard.fc_command, vehicle.GetInputPort("fc_command"))
     loggers = add_run_logging(builder, vehicle, onboard.fc_command)
@@ -109,15 +111,19 @@ class HilResult:
 def run_hil(connect: str, mission: str, options: MissionOptions, params: MavlinkVehicleParams,
             duration: float | None = None, seed: int = 0, run_dir=None,
             frame_address: str | None = None, wait: float = 10.0,
-            realtime_rate: float = 1.0, follow_autopilot_clock: bool = False) -> HilResult:
+            realtime_rate: float = 1.0, follow_autopilot_clock: bool = False,
+            down_camera: str | None = None) -> HilResult:
     """Connects, waits for the autopilot (heartbeat and TIMESYNC), asks for the telemetry rates,
     flies `mission` in real time and writes the run folder. `realtime_rate` below 1 only
     against a simulated autopilot slowed to the same rate. `follow_autopilot_clock` (simulated
     autopilots only) paces the onboard diagram on the autopilot's clock as well as the wall
-    clock, so that a simulation that falls behind real time slows the onboard side with it."""
+    clock, so that a simulation that falls behind real time slows the onboard side with it.
+    `down_camera` (an OpenCV device, e.g. "/dev/video0") feeds `down_image` from a real camera
+    calibrated by models/down_camera.yaml."""
     from alight.diagrams.hover import default_run_dir
     check_mission(mission)
     clock = WallClock(realtime_rate)
+    cameras = {"down_image": _down_camera(down_camera, clock)} if down_camera else {}
     link = MavlinkLink.open(connect, params.link, clock)
     frames = FrameSubscriber(frame_address) if frame_address else None
     try:
@@ -126,7 +132,7 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
         if follow_autopilot_clock:
             link.follow_autopilot_clock()
         diagram, loggers, mission_duration = make_hil_diagram(link, params, mission, options,
-                                                              frames)
+                                                              frames, cameras)
         sender = command_sender(diagram.GetSubsystemByName("vehicle"))
 
         def safe_stop() -> str:
@@ -149,3 +155,15 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
         link.close()
         if frames is not None:
             frames.close()
+        for camera in cameras.values():
+            camera.close()
+
+
+def _down_camera(device: str, clock: WallClock):
+    from alight.hw.opencv_camera import OpenCvCamera, OpenCvCameraParams
+    from alight.models import model_path
+    from alight.systems.params import load_params
+    from alight.systems.sensors.down_camera import DownCameraParams
+    camera = load_params(DownCameraParams, model_path("down_camera.yaml"))
+    return OpenCvCamera("down_image", OpenCvCameraParams(device=device, latency=camera.latency),
+                        camera.lens().calibration(), clock)

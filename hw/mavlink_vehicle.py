@@ -10,7 +10,8 @@ over MAVLink (hw/link.py), plus the hardware-only `link_status` diagnostics.
   `stale_timeout` is not streamed: PX4's offboard-loss failsafe then takes over, as the simulated
   flight controller's does. A rising arm flag starts OFFBOARD then ARM, a falling one DISARM
   (COMMAND_LONG, acknowledged, in a worker thread so the diagram never blocks);
-- `rgbd`, `down_image`: frames from the local frame channel (hw/frame_channel.py), if any.
+- `rgbd`, `down_image`: frames from a real camera (hw/opencv_camera.py) or from the local frame
+  channel of a simulated autopilot (hw/frame_channel.py), if any.
 """
 import dataclasses as dc
 import math
@@ -298,9 +299,12 @@ class ChannelCamera(LeafSystem):
 
 
 def make_mavlink_vehicle(link: MavlinkLink, params: MavlinkVehicleParams,
-                         frames: FrameSubscriber | None = None) -> Diagram:
+                         frames: FrameSubscriber | None = None,
+                         cameras: dict[str, LeafSystem] | None = None) -> Diagram:
     """The MAVLink vehicle diagram on an open link. Input `fc_command`; outputs `imu`,
-    `fc_attitude`, `fc_status`, `rgbd`, `down_image` and the hardware-only `link_status`."""
+    `fc_attitude`, `fc_status`, `rgbd`, `down_image` and the hardware-only `link_status`.
+    A camera port reads `cameras[name]` (a system with that one output, e.g. a real camera,
+    hw/opencv_camera.py) if given, else the frame channel `frames`, else an empty frame."""
     builder = DiagramBuilder()
     imu = builder.AddNamedSystem("imu", MavlinkImu(link, params.imu_period,
                                                    params.imu_buffer_length))
@@ -313,8 +317,14 @@ def make_mavlink_vehicle(link: MavlinkLink, params: MavlinkVehicleParams,
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
     builder.ExportOutput(telemetry.GetOutputPort("fc_attitude"), "fc_attitude")
     builder.ExportOutput(telemetry.GetOutputPort("fc_status"), "fc_status")
+    cameras = cameras or {}
+    unknown = set(cameras) - set(CAMERAS)
+    if unknown:
+        raise ValueError(f"no camera port named {sorted(unknown)}; the ports are {CAMERAS}")
     for camera in CAMERAS:
-        if frames is not None:
+        if camera in cameras:
+            source = builder.AddNamedSystem(f"{camera}_camera", cameras[camera])
+        elif frames is not None:
             source = builder.AddNamedSystem(f"{camera}_camera", ChannelCamera(
                 frames, camera, link, params.camera_period))
         else:  # no camera fitted: an empty frame, as the simulated vehicle without cameras

@@ -108,3 +108,51 @@ def test_the_vehicle_camera_port_holds_the_frame_on_the_onboard_clock(channel):
     np.testing.assert_array_equal(port.image, frame.image)
     np.testing.assert_array_equal(port.keypoints, frame.keypoints)
     assert not vehicle.GetOutputPort("rgbd").Eval(context).valid
+
+
+def test_a_real_camera_through_opencv_feeds_the_down_image_port(tmp_path):
+    """A recorded video stands in for the camera device: 20 frames at 50 fps, each marked."""
+    import cv2
+    from alight.hw.opencv_camera import CameraError, OpenCvCamera, OpenCvCameraParams
+    from alight.systems.sensors.down_camera import DownCameraParams
+    calibration = DownCameraParams(width=320, height=240, focal_length=200.0).lens().calibration()
+    video = str(tmp_path / "flight.avi")
+    writer = cv2.VideoWriter(video, cv2.VideoWriter_fourcc(*"MJPG"), 50, (320, 240))
+    for k in range(20):
+        writer.write(np.full((240, 320, 3), 10 * k + 5, np.uint8))
+    writer.release()
+    with pytest.raises(CameraError, match="cannot open camera"):
+        OpenCvCamera("down_image", OpenCvCameraParams(device=str(tmp_path / "none.avi")),
+                     calibration, WallClock())
+    link = MavlinkLink(NullTransport(), LinkParams(), WallClock(), datagrams=True)
+    camera = OpenCvCamera("down_image", OpenCvCameraParams(device=video, latency=0.03),
+                          calibration, link.clock)
+    try:
+        vehicle = make_mavlink_vehicle(link, MavlinkVehicleParams(),
+                                       cameras={"down_image": camera})
+        simulator = Simulator(vehicle)
+        context = simulator.get_mutable_context()
+        vehicle.GetInputPort("fc_command").FixValue(context, np.zeros(11))
+        seen = []
+        for step in range(1, 120):  # 0.6 s of 5 ms updates against a 0.4 s video
+            simulator.AdvanceTo(0.005 * step)
+            frame = vehicle.GetOutputPort("down_image").Eval(context)
+            if frame.valid and (not seen or frame.stamp != seen[-1].stamp):
+                seen.append(frame)
+            time.sleep(0.005)
+    finally:
+        camera.close()
+    levels = [int(round(f.image.mean())) for f in seen]
+    assert len(seen) >= 15 and levels == sorted(levels)  # in order, once each, few replaced
+    assert seen[0].image.shape == (240, 320) and seen[0].image.dtype == np.uint8  # grayscale
+    assert seen[0].calibration["width"] == 320
+    np.testing.assert_allclose(seen[0].calibration["K"], calibration["K"])
+    assert np.all(np.diff([f.stamp for f in seen]) > 0)
+    assert camera.counters.captured == 20 and camera.counters.wrong_size == 0
+    assert camera.counters.published + camera.counters.replaced == 20
+    # A camera delivering another size than its calibration: every frame dropped and counted.
+    wrong = OpenCvCamera("down_image", OpenCvCameraParams(device=video), DownCameraParams(
+        width=640, height=480).lens().calibration(), WallClock())
+    time.sleep(0.6)
+    wrong.close()
+    assert wrong.counters.wrong_size == 20 and wrong.counters.captured == 0
