@@ -242,7 +242,7 @@ class AutopilotBridge(LeafSystem):
             params = [message.param1, message.param2, message.param3, message.param4]
             if message.get_type() == "COMMAND_LONG":
                 params += [message.param5, message.param6, message.param7]
-            answer = self._commandAnswer(message.command, params, now, status)
+            answer = self._command_answer(message.command, params, now, status)
             header = message.get_header()
             if answer.text:
                 severity = mavlink.MAV_SEVERITY_INFO if answer.result == ACCEPTED \
@@ -251,7 +251,7 @@ class AutopilotBridge(LeafSystem):
             endpoint.send(mav.command_ack_encode(message.command, answer.result, 0, 0,
                                                  header.srcSystem, header.srcComponent))
 
-    def _commandAnswer(self, command, params, now, status):
+    def _command_answer(self, command, params, now, status):
         if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             return self._set_interval(params)
         if command in (mavlink.MAV_CMD_REQUEST_MESSAGE,
