@@ -3,6 +3,10 @@ import argparse
 import sys
 
 COMMANDS = {
+    "land": "take off, find the moving car with the down camera, follow it and land on it "
+            "(the landing paper's mission); prints its L Table 1 row",
+    "campaign": "Monte Carlo landings per target speed (local processes or a Dask cluster), "
+                "summarized like L Table 1",
     "hover": "arm, take off on a scripted attitude/thrust profile, hover, land (no position "
              "controller)",
     "fly": "take off, visit waypoints with the landing paper's linear MPC, land",
@@ -208,6 +212,78 @@ def _thrust_curve(args) -> int:
     return 0
 
 
+def _land_scenario(args):
+    from alight.diagrams.campaign import CampaignJob, scenario_for
+    return scenario_for(CampaignJob(args.scenario, args.target_speed, args.seed, "", args.wind,
+                                    args.gusts, args.camera))
+
+
+def _land(args) -> int:
+    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.landing import run_landing
+    from alight.diagrams.landing_plots import plot_mission, plot_paths
+    from alight.diagrams.landing_score import score_landing
+    from alight.diagrams.simulation import make_meshcat
+    from alight.systems.mission.landing import Mode, Reason
+    from alight.systems.params import ConfigError
+    try:
+        scenario = _land_scenario(args)
+    except (ConfigError, FileNotFoundError) as e:
+        print(f"alight land: {e}", file=sys.stderr)
+        return 2
+    meshcat = make_meshcat(args.meshcat, args.record)
+    run_dir = args.run_dir or default_run_dir("land", args.seed)
+    run = run_landing(scenario, seed=args.seed, run_dir=run_dir, meshcat=meshcat,
+                      record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
+    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
+    status = run["mission_status"]
+    changes = status[status["transitions"].diff().fillna(status["transitions"]) != 0]
+    for _, row in changes.iterrows():
+        print(f"  {row['time']:6.2f} s  {Mode(int(row['mode'])).name:11s} "
+              f"({Reason(int(row['reason'])).name.lower().replace('_', ' ')})")
+    print(f"{scenario.name} scenario, {scenario.camera} camera, seed {args.seed}:")
+    print("  " + score.row())
+    print(f"  plots {plot_mission(run, run.path / 'mission.png')}, "
+          f"{plot_paths(run, run.path / 'paths.png')}")
+    print(f"  run folder {run.path}" + (f"; replay {args.record}" if args.record else ""))
+    _keep_meshcat_open(args)
+    return 0 if score.success else 1
+
+
+def _campaign(args) -> int:
+    from pathlib import Path
+    from alight.diagrams.campaign import campaign_jobs, run_campaign, write_summary
+    try:
+        speeds = [float(v) for v in args.target_speeds.split(",") if v.strip()]
+    except ValueError:
+        print(f"alight campaign: --target-speeds must be numbers like 1.3,2,3, got "
+              f"{args.target_speeds!r}", file=sys.stderr)
+        return 2
+    if not speeds or args.runs < 1 or any(not 0 <= v <= 20 for v in speeds):
+        print("alight campaign: give at least one target speed in [0, 20] m/s and --runs >= 1",
+              file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    jobs = campaign_jobs(out, args.scenario, speeds, args.runs, args.seed, wind_kmh=args.wind,
+                         gusts=args.gusts, camera=args.camera)
+    rows = run_campaign(out, jobs, workers=args.workers, scheduler=args.scheduler)
+    summary = write_summary(out, rows)
+    print(summary.to_string(float_format=lambda v: f"{v:.2f}"))
+    print(f"all runs: {out / 'runs.csv'}; summary: {out / 'summary.md'}, {out / 'summary.png'}")
+    return 0
+
+
+def _add_landing_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenario", default="field",
+                        help="mbzirc, field, or a scenario YAML (a path, or a file in models/)")
+    parser.add_argument("--wind", type=float, metavar="KMH", help="mean wind speed in km/h")
+    parser.add_argument("--gusts", type=float, metavar="M_S",
+                        help="gust standard deviation in m/s")
+    parser.add_argument("--camera", choices=["geometric", "rendered"],
+                        help="down camera source (default: the scenario's)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every random source")
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="alight", description="GPS-free multirotor autonomy as Drake diagrams.",
@@ -294,6 +370,25 @@ def make_parser() -> argparse.ArgumentParser:
     hil.add_argument("--seed", type=int, default=0, help="seed of every random source")
     hil.add_argument("--run-dir", help="run folder to write (default runs/<time>-hil-<mission>)")
     hil.set_defaults(run=_hil)
+    land = sub.add_parser("land", help=COMMANDS["land"], description=COMMANDS["land"])
+    _add_landing_options(land)
+    land.add_argument("--target-speed", type=float, metavar="V", help="target speed in m/s")
+    land.add_argument("--meshcat", action="store_true",
+                      help="show the flight live in Meshcat (prints the URL); runs in real time")
+    land.add_argument("--record", metavar="FILE.html", help="write a self-contained replay")
+    land.add_argument("--run-dir", help="run folder to write (default runs/<time>-land-s<seed>)")
+    land.set_defaults(run=_land)
+    campaign = sub.add_parser("campaign", help=COMMANDS["campaign"],
+                              description=COMMANDS["campaign"])
+    _add_landing_options(campaign)
+    campaign.add_argument("--target-speeds", default="1.3,2,3,4,5,5.7", metavar="V,V,...")
+    campaign.add_argument("--runs", type=int, default=20, help="runs per speed (seeds seed..)")
+    campaign.add_argument("--workers", type=int, default=1, help="local worker processes")
+    campaign.add_argument("--scheduler", metavar="ADDRESS",
+                          help="run on this Dask distributed scheduler instead (tcp://host:8786)")
+    campaign.add_argument("--out", default="runs/campaign",
+                          help="campaign folder (runs.csv, summary, run folders); rerun resumes")
+    campaign.set_defaults(run=_campaign)
     return parser
 
 

@@ -1,0 +1,173 @@
+"""Monte Carlo landing campaigns (DESIGN.md "Campaigns"): many seeded landing missions per target
+speed, on a local process pool or on a Dask distributed cluster (the same job function), with one
+run folder per mission and a table of all runs (`runs.csv`, appended as runs finish, so an
+interrupted campaign keeps its finished runs and a second call resumes), summarized per speed in
+the form of L Table 1.
+"""
+import dataclasses as dc
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+COLUMNS = ["target_speed_setting", "seed", "success", "reason", "target_speed", "e_xy",
+           "tracking_duration", "mission_time", "touchdown_speed", "wall_time", "run_dir"]
+
+
+@dc.dataclass(frozen=True)
+class CampaignJob:
+    """One mission: the scenario (name or file) with its overrides, and where to write it."""
+    scenario: str
+    target_speed: float | None   # None: the scenario's
+    seed: int
+    run_dir: str
+    wind_kmh: float | None = None
+    gusts: float | None = None
+    camera: str | None = None
+
+
+def scenario_for(job: CampaignJob):
+    """The job's scenario with its overrides applied (and validated)."""
+    from alight.diagrams.landing import load_scenario
+    from alight.systems.params import validate
+    scenario = load_scenario(job.scenario)
+    if job.target_speed is not None:
+        scenario = dc.replace(scenario, target_speed=job.target_speed)
+    wind = scenario.wind
+    if job.wind_kmh is not None:
+        wind = dc.replace(wind, mean_speed=job.wind_kmh / 3.6)
+    if job.gusts is not None:
+        wind = dc.replace(wind, gust_std=job.gusts)
+    scenario = dc.replace(scenario, wind=wind, camera=job.camera or scenario.camera)
+    validate(scenario, "campaign job")
+    return scenario
+
+
+def run_job(job: CampaignJob) -> dict:
+    """Flies and scores one mission (runs in a worker process); returns its table row."""
+    import time
+
+    from alight.diagrams.landing import run_landing
+    from alight.diagrams.landing_score import score_landing
+    start = time.perf_counter()
+    scenario = scenario_for(job)
+    run = run_landing(scenario, seed=job.seed, run_dir=job.run_dir)
+    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
+    return {"target_speed_setting": job.target_speed, "seed": job.seed, **dc.asdict(score),
+            "wall_time": time.perf_counter() - start, "run_dir": job.run_dir}
+
+
+def campaign_jobs(out_dir: Path, scenario: str, speeds, runs: int, seed: int = 0,
+                  **overrides) -> list[CampaignJob]:
+    return [CampaignJob(scenario, float(v), seed + i,
+                        str(Path(out_dir) / "runs" / f"v{float(v):.1f}_s{seed + i}"), **overrides)
+            for v in speeds for i in range(runs)]
+
+
+def finished(out_dir: Path) -> pd.DataFrame:
+    """The rows of runs.csv (empty if none)."""
+    path = Path(out_dir) / "runs.csv"
+    return pd.read_csv(path) if path.is_file() else pd.DataFrame(columns=COLUMNS)
+
+
+def _append(out_dir: Path, row: dict) -> None:
+    path = Path(out_dir) / "runs.csv"
+    pd.DataFrame([row], columns=COLUMNS).to_csv(path, mode="a", header=not path.is_file(),
+                                                index=False)
+
+
+def run_campaign(out_dir: Path, jobs: list[CampaignJob], workers: int = 1,
+                 scheduler: str | None = None, progress: bool = True) -> pd.DataFrame:
+    """Runs the jobs not yet in out_dir/runs.csv (local pool, or the Dask scheduler at
+    `scheduler`: an address or a `distributed.Client`); returns all rows, sorted."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done = finished(out_dir)
+    keys = set(zip(done["target_speed_setting"].round(3), done["seed"]))
+    todo = [j for j in jobs if (round(j.target_speed, 3), j.seed) not in keys]
+    bar = _progress(len(jobs), len(jobs) - len(todo), progress)
+    for row in _execute(todo, workers, scheduler):
+        _append(out_dir, row)
+        bar.update(1)
+    bar.close()
+    rows = finished(out_dir)
+    return rows.sort_values(["target_speed_setting", "seed"]).reset_index(drop=True)
+
+
+def _execute(jobs, workers: int, scheduler):
+    if not jobs:
+        return
+    if scheduler is not None:
+        from distributed import Client
+        from distributed import as_completed as dask_completed
+        client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+        for future in dask_completed(client.map(run_job, jobs, pure=False)):
+            yield future.result()
+        if client is not scheduler:
+            client.close()
+        return
+    if workers <= 1:
+        for job in jobs:
+            yield run_job(job)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for future in as_completed([pool.submit(run_job, job) for job in jobs]):
+            yield future.result()
+
+
+def _progress(total: int, initial: int, enabled: bool):
+    from tqdm import tqdm
+    return tqdm(total=total, initial=initial, disable=not enabled, unit="run",
+                desc="landings")
+
+
+def summarize(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per target speed, as L Table 1 in bulk: runs, success rate, median and worst e_xy of the
+    successful landings [cm], median tracking duration [s], mean measured target speed."""
+    def one(group: pd.DataFrame) -> pd.Series:
+        ok = group[group["success"].astype(bool)]
+        return pd.Series({
+            "runs": len(group), "landed": len(ok), "success_rate": len(ok) / len(group),
+            "target_speed": group["target_speed"].mean(),
+            "e_xy_median_cm": 100 * ok["e_xy"].median() if len(ok) else np.nan,
+            "e_xy_worst_cm": 100 * ok["e_xy"].max() if len(ok) else np.nan,
+            "tracking_median_s": ok["tracking_duration"].median() if len(ok) else np.nan})
+    return rows.groupby("target_speed_setting").apply(one, include_groups=False)
+
+
+def write_summary(out_dir: Path, rows: pd.DataFrame) -> pd.DataFrame:
+    """summary.csv, summary.md (a Markdown table) and summary.png next to runs.csv."""
+    out_dir = Path(out_dir)
+    summary = summarize(rows)
+    summary.to_csv(out_dir / "summary.csv")
+    (out_dir / "summary.md").write_text(summary_markdown(summary))
+    _plot(summary, rows, out_dir / "summary.png")
+    return summary
+
+
+def summary_markdown(summary: pd.DataFrame) -> str:
+    lines = ["| target speed [m/s] | runs | landed | success | e_xy median [cm] | e_xy worst [cm] "
+             "| tracking median [s] |", "|---|---|---|---|---|---|---|"]
+    for speed, r in summary.iterrows():
+        lines.append(f"| {speed:.1f} ({r.target_speed:.2f} measured) | {r.runs:.0f} | "
+                     f"{r.landed:.0f} | {100 * r.success_rate:.0f} % | {r.e_xy_median_cm:.1f} | "
+                     f"{r.e_xy_worst_cm:.1f} | {r.tracking_median_s:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _plot(summary: pd.DataFrame, rows: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    a.bar(summary.index.astype(str), 100 * summary["success_rate"])
+    a.set_xlabel("target speed [m/s]")
+    a.set_ylabel("landed [%]")
+    ok = rows[rows["success"].astype(bool)]
+    b.scatter(ok["target_speed"], 100 * ok["e_xy"], s=12)
+    b.set_xlabel("measured target speed [m/s]")
+    b.set_ylabel("e_xy at touchdown [cm]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -1,0 +1,149 @@
+"""The landing mission end to end (L Sec. 6-7): scenario files, the closed-loop diagram (simulated
+vehicle with the moving target and the down camera, odometry, target perception, the mission state
+machine L Sec. 6.4 with its reference generation L Sec. 6.3, the linear MPC) and `run_landing`.
+"""
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder
+
+from alight.diagrams.fly import add_mpc_loop, add_mpc_logging, load_linear_mpc
+from alight.diagrams.hover import default_run_dir
+from alight.diagrams.perception import add_target_perception
+from alight.diagrams.run_log import RunLog, write_run_folder
+from alight.diagrams.sim_vehicle import SimVehicleConfig, load_sim_vehicle_config
+from alight.diagrams.simulation import simulate
+from alight.models import model_path
+from alight.systems.boundary import FC_STATUS, TARGET_ESTIMATE
+from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
+                                            Mode)
+from alight.systems.params import bounded, choice, load_params, validate
+from alight.systems.plant.wind import WindParams
+from alight.systems.sensors.camera_faults import CameraBlackout
+from alight.systems.sensors.down_camera import DownCameraParams
+from alight.systems.target.vehicle import load_target_params
+
+SCENARIOS = {"mbzirc": "scenario_mbzirc.yaml", "field": "scenario_field.yaml"}
+
+
+@dc.dataclass
+class ImpactLimits:
+    """What the airframe survives at touchdown (relative to the platform)."""
+    vertical_speed: float = bounded(3.0, 0.1, 20.0, "m/s")
+    horizontal_speed: float = bounded(2.0, 0.1, 20.0, "m/s")
+
+
+@dc.dataclass
+class LandingScenario:
+    """A landing run: vehicle, target, camera, wind, mission and scoring limits (models/scenario_*)."""
+    name: str = "field"
+    vehicle: str = "sim_vehicle.yaml"
+    vehicle_position: list[float] = bounded([0.0, -8.0], -1e4, 1e4, "m")  # take-off point, x y
+    target: str = "target.yaml"
+    target_profile: str = choice("field_test", "figure_eight", "straight")
+    target_speed: float = bounded(3.0, 0.0, 20.0, "m/s")   # the profile's (mean) speed
+    target_heading: float = bounded(90.0, -360.0, 360.0, "deg")
+    # The target starts target_speed * approach_time before the waypoint along its heading, so
+    # that it passes under the waypoint when the vehicle is there (figure eight: at the crossing).
+    approach_time: float = bounded(20.0, 0.0, 600.0, "s")
+    target_speed_std: float = bounded(0.3, 0.0, 10.0, "m/s")          # field test speed spread
+    target_turn_rate_std: float = bounded(3.0, 0.0, 180.0, "deg/s")   # field test wander
+    target_pull_rate: float = bounded(0.3, 0.0, 60.0, "1/min")        # field test sharp pulls
+    target_pull_times: list[float] = dc.field(default_factory=list)   # s, pulls at fixed times
+    camera: str = choice("geometric", "rendered")
+    camera_file: str = "down_camera.yaml"
+    camera_blackouts: list[list[float]] = dc.field(default_factory=list)  # [[start, end], ...] s
+    wind: WindParams = dc.field(default_factory=WindParams)
+    mission: LandingMissionParams = dc.field(default_factory=LandingMissionParams)
+    mpc: str = "linear_mpc.yaml"    # the MPC's tuning (models/)
+    impact: ImpactLimits = dc.field(default_factory=ImpactLimits)
+    max_duration: float = bounded(90.0, 5.0, 3600.0, "s")
+    settle_time: float = bounded(2.0, 0.5, 30.0, "s")  # after disarming, to judge the rest
+
+
+def load_scenario(name_or_file: str = "field") -> LandingScenario:
+    """A scenario by name (`mbzirc`, `field`) or YAML file (a path, or a file name in models/)."""
+    return load_params(LandingScenario, model_path(SCENARIOS.get(name_or_file, name_or_file)))
+
+
+def vehicle_config(scenario: LandingScenario) -> SimVehicleConfig:
+    """The simulated vehicle with the scenario's target, down camera and wind."""
+    config = load_sim_vehicle_config(scenario.vehicle)
+    target = load_target_params(scenario.target)
+    heading = np.radians(scenario.target_heading)
+    waypoint = np.asarray(scenario.mission.waypoint[:2])
+    start = waypoint - scenario.target_speed * scenario.approach_time * np.array(
+        [np.cos(heading), np.sin(heading)])
+    if scenario.target_profile == "figure_eight":
+        start = waypoint  # the track starts at its crossing point
+        motion = {"figure_eight": dc.replace(target.figure_eight, speed=scenario.target_speed)}
+    elif scenario.target_profile == "straight":
+        motion = {"straight": dc.replace(target.straight, speed=scenario.target_speed)}
+    else:
+        motion = {"field_test": dc.replace(
+            target.field_test, mean_speed=scenario.target_speed,
+            speed_std=scenario.target_speed_std,
+            turn_rate_std=scenario.target_turn_rate_std, pull_rate=scenario.target_pull_rate,
+            pull_times=list(scenario.target_pull_times))}
+    target = dc.replace(target, profile=scenario.target_profile, initial_position=list(start),
+                        initial_heading=scenario.target_heading, **motion)
+    camera = dc.replace(load_params(DownCameraParams, model_path(scenario.camera_file)),
+                        source=scenario.camera)
+    config = dc.replace(config, target=target, down_camera=camera, wind=scenario.wind,
+                        initial_position=list(scenario.vehicle_position))
+    validate(config, f"scenario {scenario.name}")
+    return config
+
+
+def build_landing(builder: DiagramBuilder, scenario: LandingScenario, meshcat=None,
+                  odometry=None):
+    """Adds the closed loop; returns (loop handles of add_mpc_loop, mission, perception, loggers)."""
+    config = vehicle_config(scenario)
+    mission = builder.AddNamedSystem("mission", LandingMission(scenario.mission))
+    loop = add_mpc_loop(builder, config, mission.GetOutputPort("reference"),
+                        mission.GetOutputPort("arm"), meshcat, odometry=odometry,
+                        mpc_params=load_linear_mpc(scenario.mpc))
+    image = loop.vehicle.GetOutputPort("down_image")
+    if scenario.camera_blackouts:
+        blackout = builder.AddNamedSystem("camera_blackout",
+                                          CameraBlackout(scenario.camera_blackouts))
+        builder.Connect(image, blackout.get_input_port())
+        image = blackout.get_output_port()
+    perception = add_target_perception(builder, image, loop.state_estimate_port)
+    builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))
+    builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
+    loggers = add_mpc_logging(builder, loop, mission.GetOutputPort("reference"))
+    loggers.add(builder, "mission_status", mission.GetOutputPort("mission_status"),
+                MISSION_STATUS, period=scenario.mission.period)
+    loggers.add(builder, "target_estimate", perception.target_estimate, TARGET_ESTIMATE,
+                period=scenario.mission.period)
+    return config, loop, mission, loggers
+
+
+def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=None,
+                record=None, realtime_rate: float = 0.0, odometry=None) -> RunLog:
+    """Flies one landing mission; stops `settle_time` after the disarm (or at `max_duration`) and
+    writes the run folder (streams, metadata with the scenario)."""
+    builder = DiagramBuilder()
+    config, loop, mission, loggers = build_landing(builder, scenario, meshcat, odometry)
+    status = builder.ExportOutput(mission.GetOutputPort("mission_status"), "mission_status")
+    fc = builder.ExportOutput(loop.vehicle.GetOutputPort("fc_status"), "fc_status")
+    diagram = builder.Build()
+    disarmed_at = []
+
+    def done(context) -> bool:
+        landed = MISSION_STATUS.get(diagram.get_output_port(status).Eval(context), "mode") \
+            == Mode.LANDED
+        if landed and not disarmed_at and \
+                FC_STATUS.get(diagram.get_output_port(fc).Eval(context), "armed") < 0.5:
+            disarmed_at.append(context.get_time())
+        return bool(disarmed_at) and context.get_time() >= disarmed_at[0] + scenario.settle_time
+
+    simulator = simulate(diagram, scenario.max_duration, seed, meshcat, record, realtime_rate,
+                         stop_when=done)
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("land", seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {
+        "command": "land", "seed": seed, "duration": simulator.get_context().get_time(),
+        "scenario": scenario, "config": config})
+    return RunLog(run_dir)

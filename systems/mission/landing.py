@@ -1,0 +1,240 @@
+"""The landing paper's mission state machine, L Sec. 6.4 and Fig. 9, with its reference generation
+(L Sec. 6.3): Idle -> Taking Off -> Waypoint -> Follow -> Landing Phase 1 -> Landing Phase 2 ->
+Landed, with the returns to Waypoint on detection loss.
+
+- Idle: disarmed, zero thrust. On the first valid state estimate: Taking Off.
+- Taking Off: arm (rotors idle for `arm_time`), climb to `takeoff_height` above the start at
+  `takeoff_velocity`. Then Waypoint.
+- Waypoint: fly to and hover at the waypoint. On a detection (a valid target estimate whose last
+  accepted measurement is younger than `detection_timeout`): Follow.
+- Follow: position and velocity references from the target (predicted, low-pass filtered), at the
+  waypoint's height. Detection lost for `detection_timeout`: Waypoint. Horizontal position and
+  velocity errors under `position_threshold`, `velocity_threshold`: Landing Phase 1.
+- Landing Phase 1: as Follow, descending at `descending_p1`; detection timeout: Waypoint. Height
+  above the target under `landing_p2_offset`: Landing Phase 2.
+- Landing Phase 2: descending at `descending_p2`; no timeout (it cannot be cancelled). Height
+  above the target under `landed_offset`: Landed.
+- Landed: disarm.
+
+Every transition is counted and published with its time and reason on `mission_status`.
+Positions are those of the state estimate's frame E, in which the target estimate is expressed.
+"""
+import dataclasses as dc
+import enum
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE, VectorLayout
+from alight.systems.mission.reference_generator import filter_reference
+from alight.systems.params import bounded
+
+
+@dc.dataclass
+class LandingMissionParams:
+    """Defaults: L Table 2, except the waypoint (the scenario's) and the timings of arming."""
+    period: float = bounded(0.05, 0.005, 1.0, "s")              # 20 Hz (DESIGN.md)
+    waypoint: list[float] = bounded([0.0, 0.0, 5.2], -1e4, 1e4, "m")
+    takeoff_height: float = bounded(5.2, 0.5, 100.0, "m")       # z_TakeOffHeight
+    takeoff_velocity: float = bounded(0.5, 0.05, 5.0, "m/s")    # z_dot_TakeOffVelocity
+    cutoff_position: float = bounded(30.0, 0.01, 1000.0, "Hz")  # f_CutOffPosition
+    cutoff_velocity: float = bounded(30.0, 0.01, 1000.0, "Hz")  # f_CutOffVelocity
+    t_prediction: float = bounded(0.1, 0.0, 5.0, "s")           # t_Prediction
+    detection_timeout: float = bounded(0.5, 0.05, 60.0, "s")    # t_DetectionTimeOut
+    position_threshold: float = bounded(0.8, 0.05, 20.0, "m")   # d_PositionThreshold
+    velocity_threshold: float = bounded(0.8, 0.05, 20.0, "m/s")  # d_VelocityThreshold
+    landing_p2_offset: float = bounded(2.5, 0.1, 50.0, "m")     # z_LandingP2Offset
+    landed_offset: float = bounded(0.35, 0.0, 5.0, "m")         # z_SuccessfulLandingOffset
+    descending_p1: float = bounded(1.3, 0.05, 10.0, "m/s")      # z_dot_DescendingP1
+    descending_p2: float = bounded(1.8, 0.05, 10.0, "m/s")      # z_dot_DescendingP2
+    takeoff_tolerance: float = bounded(0.3, 0.02, 5.0, "m")     # take-off height reached within
+    start_delay: float = bounded(1.0, 0.0, 60.0, "s")           # settle before arming
+    arm_time: float = bounded(0.5, 0.0, 10.0, "s")              # rotors idle before lift-off
+    heading: float = bounded(0.0, -360.0, 360.0, "deg")         # psi_r (zero in the paper)
+
+
+class Mode(enum.IntEnum):
+    IDLE = 0
+    TAKING_OFF = 1
+    WAYPOINT = 2
+    FOLLOW = 3
+    LANDING_P1 = 4
+    LANDING_P2 = 5
+    LANDED = 6
+
+
+class Reason(enum.IntEnum):
+    NONE = 0
+    ESTIMATE_VALID = 1        # Idle -> Taking Off
+    TAKEOFF_HEIGHT = 2        # Taking Off -> Waypoint
+    DETECTION = 3             # Waypoint -> Follow
+    DETECTION_TIMEOUT = 4     # Follow / Landing Phase 1 -> Waypoint
+    CAUGHT_UP = 5             # Follow -> Landing Phase 1
+    BELOW_P2_OFFSET = 6       # Landing Phase 1 -> Landing Phase 2
+    BELOW_LANDED_OFFSET = 7   # Landing Phase 2 -> Landed
+
+
+# Output `mission_status`: mode (Mode); reason (Reason) and time [s] of the last transition; the
+# number of transitions so far; time of the first detection [s] (nan before); time of the target
+# estimate's last accepted measurement [s]; estimated horizontal distance to the target [m] (nan
+# without a valid target estimate).
+MISSION_STATUS = VectorLayout("mission_status", [
+    ("mode", 1), ("reason", 1), ("transition_time", 1), ("transitions", 1),
+    ("first_detection", 1), ("last_detection", 1), ("e_xy", 1)])
+
+# Discrete state: the status fields above, then the reference, the filtered target reference and
+# the start position.
+_STATE = VectorLayout("landing_mission_state", [
+    *MISSION_STATUS.fields, ("p_ref", 3), ("v_ref", 3), ("p_filtered", 3), ("v_filtered", 3),
+    ("start", 3)])
+
+
+class LandingMission(LeafSystem):
+    """Inputs  `state_estimate` STATE_ESTIMATE; `target_estimate` TARGET_ESTIMATE
+    Outputs `reference` REFERENCE (position, velocity, heading) for the MPC; `arm` (2: arm request,
+            thrust enable) for the arm gate; `mission_status` MISSION_STATUS
+    """
+
+    def __init__(self, params: LandingMissionParams):
+        super().__init__()
+        self._p = params
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
+        initial = np.zeros(_STATE.size)
+        initial[_STATE.slice("first_detection")] = np.nan
+        initial[_STATE.slice("last_detection")] = np.nan
+        initial[_STATE.slice("e_xy")] = np.nan
+        self._xd = self.DeclareDiscreteState(initial)
+        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
+        state = {self.xd_ticket()}
+        self.DeclareVectorOutputPort("reference", REFERENCE.size, self._calc_reference,
+                                     prerequisites_of_calc=state)
+        self.DeclareVectorOutputPort("arm", 2, self._calc_arm, prerequisites_of_calc=state)
+        self.DeclareVectorOutputPort(
+            "mission_status", MISSION_STATUS.size,
+            lambda c, o: o.SetFromVector(self._x(c)[:MISSION_STATUS.size]),
+            prerequisites_of_calc=state)
+
+    def _x(self, context) -> np.ndarray:
+        return context.get_discrete_state(self._xd).get_value()
+
+    def _mode(self, context) -> Mode:
+        return Mode(int(_STATE.get(self._x(context), "mode")))
+
+    def _calc_reference(self, context, output):
+        x = self._x(context)
+        output.SetFromVector(REFERENCE.pack(
+            stamp=context.get_time(), p=_STATE.get(x, "p_ref"), v=_STATE.get(x, "v_ref"),
+            a=np.zeros(3), j=np.zeros(3), heading=np.radians(self._p.heading), heading_rate=0.0))
+
+    def _calc_arm(self, context, output):
+        mode = self._mode(context)
+        airborne = Mode.TAKING_OFF <= mode < Mode.LANDED
+        lift_off = context.get_time() >= _STATE.get(self._x(context), "transition_time") \
+            + self._p.arm_time or mode != Mode.TAKING_OFF
+        output.SetFromVector([float(airborne), float(airborne and lift_off)])
+
+    def _detected(self, now: float, target: np.ndarray) -> bool:
+        last = TARGET_ESTIMATE.get(target, "last_measurement")
+        return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5 and np.isfinite(last)
+                    and now - last <= self._p.detection_timeout
+                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("p_WT")]))
+                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("v_WT")])))
+
+    def _update(self, context, discrete_state):
+        p = self._p
+        now = context.get_time()
+        x = self._x(context).copy()
+        estimate, target = self._estimate.Eval(context), self._target.Eval(context)
+        p_B, v_B = STATE_ESTIMATE.get(estimate, "p_EB"), STATE_ESTIMATE.get(estimate, "v_EB")
+        estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 and \
+            np.all(np.isfinite(p_B)) and np.all(np.isfinite(v_B))
+        fresh = self._detected(now, target)
+        p_T, v_T = TARGET_ESTIMATE.get(target, "p_WT"), TARGET_ESTIMATE.get(target, "v_WT")
+        if fresh:
+            x[_STATE.slice("last_detection")] = TARGET_ESTIMATE.get(target, "last_measurement")
+            if np.isnan(_STATE.get(x, "first_detection")):
+                x[_STATE.slice("first_detection")] = now
+        else:
+            # No usable estimate now: continue on the last filtered target motion.
+            v_T = _STATE.get(x, "v_filtered")
+            p_T = _STATE.get(x, "p_filtered") + v_T * p.period - p.t_prediction * v_T
+        # t_CurrentTime - t_LastDetection > t_DetectionTimeOut: the target is not visible.
+        last = _STATE.get(x, "last_detection")
+        detected = bool(np.isfinite(last) and now - last <= p.detection_timeout)
+        x[_STATE.slice("e_xy")] = np.linalg.norm(p_B[:2] - p_T[:2]) if detected else np.nan
+        mode = Mode(int(_STATE.get(x, "mode")))
+
+        def go(new_mode: Mode, reason: Reason):
+            nonlocal mode
+            mode = new_mode
+            x[_STATE.slice("mode")] = new_mode
+            x[_STATE.slice("reason")] = reason
+            x[_STATE.slice("transition_time")] = now
+            x[_STATE.slice("transitions")] += 1
+
+        def set_reference(position, velocity):
+            x[_STATE.slice("p_ref")] = position
+            x[_STATE.slice("v_ref")] = velocity
+
+        def follow_target(descent_rate: float):
+            """L Fig. 8 reference: filtered predicted target horizontally; the altitude held
+            (Follow) or descending toward the target (landing phases)."""
+            p_f, v_f = filter_reference(_STATE.get(x, "p_filtered"), _STATE.get(x, "v_filtered"),
+                                        p_T, v_T, p.t_prediction, p.cutoff_position,
+                                        p.cutoff_velocity, p.period)
+            x[_STATE.slice("p_filtered")], x[_STATE.slice("v_filtered")] = p_f, v_f
+            z = _STATE.get(x, "p_ref")[2] - descent_rate * p.period
+            z = max(z, p_T[2] - 0.5)  # press onto the platform, not through it
+            set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], v_T[2] - descent_rate])
+
+        def start_following():
+            x[_STATE.slice("p_filtered")] = p_T + p.t_prediction * v_T
+            x[_STATE.slice("v_filtered")] = v_T
+
+        if not estimate_ok and mode != Mode.IDLE:
+            # No odometry: hold the last reference (the controller reports the bad estimate and
+            # the flight controller's failsafe takes over if commands stop).
+            discrete_state.set_value(self._xd, x)
+            return
+        if mode == Mode.IDLE:
+            if estimate_ok:
+                set_reference(p_B, np.zeros(3))
+                x[_STATE.slice("start")] = p_B
+                if now >= p.start_delay:
+                    go(Mode.TAKING_OFF, Reason.ESTIMATE_VALID)
+        elif mode == Mode.TAKING_OFF:
+            start = _STATE.get(x, "start")
+            goal = start[2] + p.takeoff_height
+            if now < _STATE.get(x, "transition_time") + p.arm_time:
+                set_reference(start, np.zeros(3))
+            else:
+                z = min(_STATE.get(x, "p_ref")[2] + p.takeoff_velocity * p.period, goal)
+                set_reference([start[0], start[1], z],
+                              [0.0, 0.0, p.takeoff_velocity if z < goal else 0.0])
+                if z >= goal and abs(p_B[2] - goal) < p.takeoff_tolerance:
+                    go(Mode.WAYPOINT, Reason.TAKEOFF_HEIGHT)
+        elif mode == Mode.WAYPOINT:
+            set_reference(p.waypoint, np.zeros(3))
+            if fresh:
+                go(Mode.FOLLOW, Reason.DETECTION)
+                start_following()
+                follow_target(0.0)
+        elif mode in (Mode.FOLLOW, Mode.LANDING_P1):
+            if not detected:
+                go(Mode.WAYPOINT, Reason.DETECTION_TIMEOUT)
+                set_reference(p.waypoint, np.zeros(3))
+            elif mode == Mode.FOLLOW:
+                follow_target(0.0)
+                e_v = np.linalg.norm(v_B[:2] - v_T[:2])
+                if _STATE.get(x, "e_xy") <= p.position_threshold and e_v <= p.velocity_threshold:
+                    go(Mode.LANDING_P1, Reason.CAUGHT_UP)
+            else:
+                follow_target(p.descending_p1)
+                if p_B[2] - p_T[2] <= p.landing_p2_offset:
+                    go(Mode.LANDING_P2, Reason.BELOW_P2_OFFSET)
+        elif mode == Mode.LANDING_P2:
+            follow_target(p.descending_p2)  # no timeout: lost close to the target, L Sec. 6.4
+            if p_B[2] - p_T[2] <= p.landed_offset:
+                go(Mode.LANDED, Reason.BELOW_LANDED_OFFSET)
+        discrete_state.set_value(self._xd, x)

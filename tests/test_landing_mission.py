@@ -1,0 +1,159 @@
+"""The landing mission's state machine (L Sec. 6.4) and reference generation (L Sec. 6.3), driven by
+scripted state and target estimates (no physics): transitions, thresholds, timeouts, disarm."""
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import VectorLogSink
+
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
+                                            Mode, Reason)
+from alight.systems.mission.reference_generator import filter_reference, low_pass_gain
+
+PLATFORM_Z = 1.0
+
+
+def HOVER(t):
+    """A scripted vehicle: on the ground, then hovering at the waypoint whatever it is told."""
+    return np.array([0.0, 0.0, 0.22 if t < 2.0 else 5.42]), np.zeros(3)
+
+
+class Scripted(LeafSystem):
+    """Estimates from functions of time: vehicle(t) -> p, v; target(t) -> p, v or None (unseen).
+    The vehicle follows the mission's reference exactly (an ideal controller) when vehicle is None."""
+
+    def __init__(self, target, vehicle=None):
+        super().__init__()
+        self._target, self._vehicle = target, vehicle
+        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self.DeclareVectorOutputPort("state_estimate", STATE_ESTIMATE.size, self._estimate)
+        self.DeclareVectorOutputPort("target_estimate", TARGET_ESTIMATE.size, self._target_estimate)
+        self._seen = [np.nan]
+
+    def _estimate(self, context, output):
+        t = context.get_time()
+        if self._vehicle is not None:
+            p, v = self._vehicle(t)
+        else:
+            reference = self._reference.Eval(context)
+            p, v = REFERENCE.get(reference, "p"), REFERENCE.get(reference, "v")
+            if t < 0.01:
+                p = np.array([0.0, -6.0, 0.22])
+        output.SetFromVector(STATE_ESTIMATE.pack(
+            stamp=t, p_EB=p, v_EB=v, a_EB=np.zeros(3), q_EB=[1, 0, 0, 0], heading=0.0,
+            heading_rate=0.0, var_pv=np.full(6, 1e-4), var_heading=1e-4, frame_id=0,
+            frame_counter=0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0))
+
+    def _target_estimate(self, context, output):
+        t = context.get_time()
+        seen = self._target(t)
+        p, v = (seen if seen is not None else (np.zeros(3), np.zeros(3)))
+        last = t if seen is not None else np.nan
+        output.SetFromVector(TARGET_ESTIMATE.pack(
+            stamp=t, p_WT=p, q_WT=[1, 0, 0, 0], v_WT=v, var_p=np.full(3, 1e-3),
+            var_rot=np.full(3, 1e-3), var_v=np.full(3, 1e-2), last_measurement=last,
+            valid=float(seen is not None), keypoints=9.0 if seen is not None else 0.0,
+            frame_counter=0.0))
+
+
+def fly(target, duration, vehicle=None, params=None):
+    params = params or LandingMissionParams()
+    builder = DiagramBuilder()
+    mission = builder.AddSystem(LandingMission(params))
+    script = builder.AddSystem(Scripted(target, vehicle))
+    builder.Connect(mission.GetOutputPort("reference"), script.GetInputPort("reference"))
+    builder.Connect(script.GetOutputPort("state_estimate"), mission.GetInputPort("state_estimate"))
+    builder.Connect(script.GetOutputPort("target_estimate"),
+                    mission.GetInputPort("target_estimate"))
+    logs = {}
+    for name, size in (("mission_status", MISSION_STATUS.size), ("reference", REFERENCE.size),
+                       ("arm", 2)):
+        logs[name] = builder.AddSystem(VectorLogSink(size, params.period))
+        builder.Connect(mission.GetOutputPort(name), logs[name].get_input_port())
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(duration)
+    context = simulator.get_context()
+    return {name: (log.FindLog(context).sample_times(), log.FindLog(context).data().T)
+            for name, log in logs.items()}
+
+
+def transitions(logs):
+    t, status = logs["mission_status"]
+    count = status[:, MISSION_STATUS.slice("transitions")].ravel()
+    changed = np.flatnonzero(np.diff(count)) + 1
+    return [(float(t[i]), Mode(int(status[i, 0])), Reason(int(status[i, 1]))) for i in changed]
+
+
+def moving_target(speed, appear=None, hide=()):
+    """A platform moving along +y through the waypoint (0, 0) at `speed`, at y = 0 at t = 20 s;
+    unseen before `appear` and within the `hide` windows."""
+    def target(t):
+        if (appear is not None and t < appear) or any(a <= t < b for a, b in hide):
+            return None
+        return np.array([0.0, speed * (t - 20.0), PLATFORM_Z]), np.array([0.0, speed, 0.0])
+    return target
+
+
+def test_ideal_vehicle_runs_every_mode_in_order_and_disarms():
+    logs = fly(moving_target(2.0, appear=17.0), 40.0)
+    modes = [m for _, m, _ in transitions(logs)]
+    assert modes == [Mode.TAKING_OFF, Mode.WAYPOINT, Mode.FOLLOW, Mode.LANDING_P1,
+                     Mode.LANDING_P2, Mode.LANDED]
+    reasons = [r for _, _, r in transitions(logs)]
+    assert reasons == [Reason.ESTIMATE_VALID, Reason.TAKEOFF_HEIGHT, Reason.DETECTION,
+                       Reason.CAUGHT_UP, Reason.BELOW_P2_OFFSET, Reason.BELOW_LANDED_OFFSET]
+    t, arm = logs["arm"]
+    landed_at = transitions(logs)[-1][0]
+    assert np.all(arm[t > landed_at + 0.1] == 0.0)          # Landed disarms
+    assert np.all(arm[(t > 2.0) & (t < landed_at - 0.1), 0] == 1.0)
+    # Take-off climbs at the take-off velocity (L Table 2: 0.5 m/s) to 5.2 m above the start.
+    t_ref, reference = logs["reference"]
+    z = reference[:, REFERENCE.slice("p")][:, 2]
+    climbing = (t_ref > 3.0) & (t_ref < 10.0)
+    assert np.diff(z[climbing]).mean() / 0.05 == pytest.approx(0.5, rel=0.05)
+    assert z.max() == pytest.approx(0.22 + 5.2, abs=1e-6)
+
+
+def test_detection_loss_in_follow_returns_to_waypoint_after_the_timeout():
+    # The vehicle (scripted) hovers at the waypoint: 3 m from the target, it stays in Follow.
+    logs = fly(moving_target(1.0, appear=17.0, hide=[(18.0, 30.0)]), 25.0, vehicle=HOVER)
+    events = transitions(logs)
+    follow = [t for t, m, _ in events if m == Mode.FOLLOW][0]
+    back = [(t, r) for t, m, r in events if m == Mode.WAYPOINT and t > follow]
+    assert back and back[0][1] == Reason.DETECTION_TIMEOUT
+    assert 18.0 + 0.5 <= back[0][0] <= 18.0 + 0.5 + 0.1   # t_DetectionTimeOut, one tick
+    assert all(m < Mode.LANDING_P1 for _, m, _ in events)
+
+
+def test_detection_loss_in_landing_phase_2_does_not_cancel_the_landing():
+    events = transitions(fly(moving_target(2.0, appear=17.0), 40.0))
+    p2 = [t for t, m, _ in events if m == Mode.LANDING_P2][0]
+    hidden = transitions(fly(moving_target(2.0, appear=17.0, hide=[(p2 + 0.1, 99.0)]), 40.0))
+    assert [m for _, m, _ in hidden] == [m for _, m, _ in events]   # still Landed, no return
+    assert hidden[-1][1] == Mode.LANDED
+
+
+def test_target_that_cannot_be_caught_never_triggers_a_landing_phase():
+    # The vehicle (scripted) stays at the waypoint; the target crosses the view and leaves.
+    in_view = lambda t: (moving_target(8.0)(t) if abs(8.0 * (t - 20.0)) < 4.0 else None)
+    events = transitions(fly(in_view, 30.0, vehicle=HOVER))
+    assert Mode.WAYPOINT in [m for _, m, _ in events]
+    assert Mode.FOLLOW in [m for _, m, _ in events]
+    assert all(m not in (Mode.LANDING_P1, Mode.LANDING_P2, Mode.LANDED) for _, m, _ in events)
+
+
+def test_reference_generation_predicts_and_low_passes_the_target():
+    p, v = filter_reference(np.zeros(3), np.zeros(3), np.array([1.0, 2.0, 1.0]),
+                            np.array([0.0, 4.0, 0.0]), 0.1, 30.0, 30.0, 0.05)
+    a = low_pass_gain(30.0, 0.05)
+    np.testing.assert_allclose(p, a * np.array([1.0, 2.4, 1.0]))   # predicted 0.1 s ahead
+    np.testing.assert_allclose(v, a * np.array([0.0, 4.0, 0.0]))
+    assert low_pass_gain(1.0, 0.05) == pytest.approx(1 - np.exp(-2 * np.pi * 0.05))
+
+
+def test_nan_target_estimate_is_not_a_detection():
+    nan_target = lambda t: (np.full(3, np.nan), np.zeros(3)) if t > 17.0 else None
+    events = transitions(fly(nan_target, 22.0))
+    assert all(m != Mode.FOLLOW for _, m, _ in events)
