@@ -162,6 +162,13 @@ def wait_for(condition, timeout, what):
     raise AssertionError(f"not within {timeout} s: {what}")
 
 
+def sleep_sim(link, duration):
+    """Waits `duration` of the autopilot's clock (the simulation may run behind the wall clock)."""
+    start = link.state().attitude_t_fc
+    wait_for(lambda: link.state().attitude_t_fc >= start + duration, 30.0,
+             f"{duration} s simulated")
+
+
 def test_sim_autopilot_refuses_offboard_and_arm_then_fails_safe_when_offboard_is_lost(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot")
     link = None
@@ -172,21 +179,21 @@ def test_sim_autopilot_refuses_offboard_and_arm_then_fails_safe_when_offboard_is
         with pytest.raises(CommandDenied, match="TEMPORARILY_REJECTED.*no setpoints"):
             link.set_mode(px4.OFFBOARD)
         streamer = Streamer(link, thrust=0.5)
-        time.sleep(0.3)
+        sleep_sim(link, 0.3)
         link.set_mode(px4.OFFBOARD)
         with pytest.raises(CommandDenied, match="thrust setpoint above 0.15"):
             link.arm()
         streamer.thrust = 0.1
-        time.sleep(0.1)
+        sleep_sim(link, 0.1)
         link.arm()
-        wait_for(lambda: link.state().armed and link.state().offboard, 3.0, "armed in OFFBOARD")
+        wait_for(lambda: link.state().armed and link.state().offboard, 10.0, "armed in OFFBOARD")
         streamer.thrust = 0.8    # climb ...
-        time.sleep(1.5)
+        sleep_sim(link, 1.5)
         streamer.thrust = 0.637  # ... and hover thrust
-        time.sleep(0.3)
+        sleep_sim(link, 0.3)
         streamer.stop()
-        wait_for(lambda: link.state().custom_mode == px4.LAND, 5.0, "AUTO.LAND reported")
-        wait_for(lambda: not link.state().armed, 30.0, "landed and disarmed on its own")
+        wait_for(lambda: link.state().custom_mode == px4.LAND, 10.0, "AUTO.LAND reported")
+        wait_for(lambda: not link.state().armed, 60.0, "landed and disarmed on its own")
         assert link.counters_snapshot().malformed == 0
     finally:
         if link is not None:
