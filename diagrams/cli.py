@@ -233,8 +233,11 @@ def _land(args) -> int:
         return 2
     meshcat = make_meshcat(args.meshcat, args.record)
     run_dir = args.run_dir or default_run_dir("land", args.seed)
+    import time
+    start = time.perf_counter()
     run = run_landing(scenario, seed=args.seed, run_dir=run_dir, meshcat=meshcat,
                       record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
+    wall = time.perf_counter() - start
     score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
     status = run["mission_status"]
     changes = status[status["transitions"].diff().fillna(status["transitions"]) != 0]
@@ -245,6 +248,8 @@ def _land(args) -> int:
     print("  " + score.row())
     print(f"  plots {plot_mission(run, run.path / 'mission.png')}, "
           f"{plot_paths(run, run.path / 'paths.png')}")
+    print(f"  simulated {run.metadata['duration']:.1f} s in {wall:.1f} s of wall time (real-time "
+          f"factor {run.metadata['duration'] / wall:.2f}, including set-up)")
     print(f"  run folder {run.path}" + (f"; replay {args.record}" if args.record else ""))
     _keep_meshcat_open(args)
     return 0 if score.success else 1

@@ -127,6 +127,14 @@ def test_detection_loss_in_follow_returns_to_waypoint_after_the_timeout():
     assert all(m < Mode.LANDING_P1 for _, m, _ in events)
 
 
+def test_after_a_detection_loss_the_mission_follows_again_and_lands():
+    events = transitions(fly(moving_target(2.0, appear=17.0, hide=[(17.3, 19.0)]), 40.0))
+    modes = [m for _, m, _ in events]
+    lost = modes.index(Mode.WAYPOINT, 2)  # the return after the first Follow
+    assert events[lost][2] == Reason.DETECTION_TIMEOUT and 17.8 <= events[lost][0] <= 17.9
+    assert modes[lost + 1:] == [Mode.FOLLOW, Mode.LANDING_P1, Mode.LANDING_P2, Mode.LANDED]
+
+
 def test_detection_loss_in_landing_phase_2_does_not_cancel_the_landing():
     events = transitions(fly(moving_target(2.0, appear=17.0), 40.0))
     p2 = [t for t, m, _ in events if m == Mode.LANDING_P2][0]
