@@ -98,9 +98,9 @@ def add_mpc_logging(builder, loop: MpcLoop, reference_port) -> RunLoggers:
 def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0,
                   run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
                   mission: WaypointMissionParams | None = None, max_duration: float = 300.0,
-                  odometry=None) -> RunLog:
+                  odometry=None, log=None) -> RunLog:
     """Takes off, visits the waypoints with the linear MPC, lands and disarms (`odometry` as in
-    `add_mpc_loop`)."""
+    `add_mpc_loop`; `log(builder, loggers)` may add streams of its own, e.g. the VIO's)."""
     builder = DiagramBuilder()
     mission_system = WaypointMission(waypoints, mission or WaypointMissionParams())
     builder.AddNamedSystem("mission", mission_system)
@@ -108,6 +108,8 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
                         mission_system.GetOutputPort("arm"), meshcat, odometry=odometry)
     builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
     loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
+    if log is not None:
+        log(builder, loggers)
     phase = builder.ExportOutput(mission_system.GetOutputPort("phase"), "phase")
     status = builder.ExportOutput(loop.vehicle.GetOutputPort("fc_status"), "fc_status")
     diagram = builder.Build()

@@ -4,7 +4,6 @@ import dataclasses as dc
 
 import numpy as np
 from pydrake.common import RandomDistribution
-from pydrake.common.value import AbstractValue
 from pydrake.geometry import (AddContactMaterial, Box, GeometryInstance, HalfSpace,
                               IllustrationProperties, Meshcat, ProximityProperties, Rgba, Sphere)
 from pydrake.math import RigidTransform, RollPitchYaw
@@ -12,14 +11,14 @@ from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction,
                                      ExternallyAppliedSpatialForceMultiplexer,
                                      MultibodyPlantConfig, Propeller)
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import ConstantValueSource, RandomSource
+from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from alight.diagrams.flight_controller import make_flight_controller
+from alight.diagrams.rgbd_camera import add_rgbd_camera, add_rgbd_scene
 from alight.diagrams.target import add_target_scene, add_target_systems, perceived_ground
 from alight.models import model_path
 from alight.systems.autopilot.config import FlightControllerParams
-from alight.systems.boundary import CameraFrame
 from alight.systems.params import bounded, load_params
 from alight.systems.plant.drag import AerodynamicDrag
 from alight.systems.plant.hexacopter import (add_hexacopter, airframe, load_hexacopter_params,
@@ -30,6 +29,7 @@ from alight.systems.sensors.fc_estimate import FcEstimate, FcEstimateParams
 from alight.systems.sensors.ground_truth import GroundTruth
 from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.sensors.imu import Imu, ImuParams
+from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.target.vehicle import TargetParams
 
 
@@ -46,6 +46,7 @@ class SimVehicleConfig:
     wind: WindParams = dc.field(default_factory=WindParams)
     down_camera: DownCameraParams = dc.field(default_factory=DownCameraParams)  # source none: no camera
     target: TargetParams = dc.field(default_factory=TargetParams)  # profile none: no target
+    rgbd_camera: RgbdCameraParams = dc.field(default_factory=RgbdCameraParams)  # the VIO camera
 
 
 def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleConfig:
@@ -72,18 +73,20 @@ def _add_ground(plant, friction: float, perceived: bool = True):
 
 def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -> Diagram:
     """The simulated vehicle diagram. Input `fc_command`; outputs `imu`, `fc_attitude`,
-    `fc_status`, `rgbd` (no camera fitted yet: empty CameraFrame), `down_image` (the downward
-    camera of `config.down_camera`, empty frames with source none) and the simulation-only
-    `ground_truth` (with the target of `config.target`, if any). Seed it with
-    `Diagram.SetRandomContext`."""
+    `fc_status`, `rgbd` (the forward RGB-D camera of `config.rgbd_camera`, empty frames with source
+    none), `down_image` (the downward camera of `config.down_camera`, empty frames with source
+    none) and the simulation-only `ground_truth` (with the target of `config.target`, if any).
+    Seed it with `Diagram.SetRandomContext`."""
     params = load_hexacopter_params(config.vehicle)
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
         MultibodyPlantConfig(time_step=config.time_step, discrete_contact_approximation="sap"),
         builder)
-    _add_ground(plant, config.ground_friction, perceived_ground(config.down_camera))
+    _add_ground(plant, config.ground_friction, perceived_ground(config.down_camera)
+                and config.rgbd_camera.source != "rendered")
     instance = add_hexacopter(plant, params)
     scene = add_target_scene(plant, config.target, config.down_camera)
+    add_rgbd_scene(plant, config.rgbd_camera, not perceived_ground(config.down_camera))
     plant.Finalize()
     body = plant.GetBodyByName(params.body)
     frame = airframe(plant, params)
@@ -167,9 +170,8 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
     builder.ExportOutput(estimate.GetOutputPort("fc_attitude"), "fc_attitude")
     builder.ExportOutput(fc.GetOutputPort("fc_status"), "fc_status")
-    rgbd = builder.AddNamedSystem("rgbd_camera", ConstantValueSource(  # reserved: VIO issue
-        AbstractValue.Make(CameraFrame())))
-    builder.ExportOutput(rgbd.get_output_port(), "rgbd")
+    builder.ExportOutput(add_rgbd_camera(builder, plant, scene_graph, config.rgbd_camera, body),
+                         "rgbd")
     builder.ExportOutput(down_image, "down_image")
     builder.ExportOutput(truth.GetOutputPort("ground_truth"), "ground_truth")
     diagram = builder.Build()

@@ -109,16 +109,18 @@ def _add_camera(builder, plant, scene_graph, scene: TargetScene, vehicle_body):
     return camera.GetOutputPort("down_image")
 
 
-def add_render_sensor(builder, plant, scene_graph, params: DownCameraParams, body) -> RgbdSensor:
-    """A VTK renderer (headless) and a Drake RgbdSensor with the pinhole that covers the lens,
-    attached to `body` at X_BC."""
+def add_render_sensor(builder, plant, scene_graph, params: DownCameraParams, body,
+                      intrinsics=None, name: str = "down_camera_render") -> RgbdSensor:
+    """A VTK renderer (headless) and a Drake RgbdSensor attached to `body` at `params.X_BC()`,
+    with the pinhole `intrinsics` (width, height, f, cx, cy), by default the one that covers the
+    down camera's lens (`render_intrinsics`)."""
     if not scene_graph.HasRenderer(RENDERER):
         scene_graph.AddRenderer(RENDERER, MakeRenderEngineVtk(RenderEngineVtkParams(
             backend=params.renderer_backend)))
-    width, height, f, cx, cy = render_intrinsics(params)
+    width, height, f, cx, cy = intrinsics or render_intrinsics(params)
     core = RenderCameraCore(RENDERER, CameraInfo(width, height, f, f, cx, cy),
                             ClippingRange(0.05, 200.0), RigidTransform())
-    sensor = builder.AddNamedSystem("down_camera_render", RgbdSensor(
+    sensor = builder.AddNamedSystem(name, RgbdSensor(
         plant.GetBodyFrameIdOrThrow(body.index()), params.X_BC(), ColorRenderCamera(core, False),
         DepthRenderCamera(core, DepthRange(0.05, 60.0))))
     builder.Connect(scene_graph.get_query_output_port(), sensor.query_object_input_port())

@@ -60,10 +60,11 @@ class TimedCamera(LeafSystem):
     """Exposure and publication timing shared by the camera sources. Subclasses implement
     `_expose(context) -> CameraFrame | None` (None: the frame is lost).
 
-    Output `down_image`  CameraFrame, the latest published frame (invalid before the first)
+    Output `down_image`  CameraFrame, the latest published frame (invalid before the first); the
+                         forward RGB-D camera names it `rgbd` (`output_name`)
     """
 
-    def __init__(self, params: DownCameraParams):
+    def __init__(self, params: DownCameraParams, output_name: str = "down_image"):
         super().__init__()
         self._params = params
         self._pending = self.DeclareAbstractState(AbstractValue.Make([]))
@@ -71,11 +72,14 @@ class TimedCamera(LeafSystem):
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, params.phase, self._on_exposure)
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, params.phase + params.latency,
                                                     self._on_release)
-        self.DeclareStateOutputPort("down_image", self._frame)
+        self.DeclareStateOutputPort(output_name, self._frame)
 
     def _on_exposure(self, context, state):
+        self._queue(context, state, self._expose(context))
+
+    def _queue(self, context, state, frame: CameraFrame | None) -> None:
+        """Schedules `frame` (None: lost) for publication `latency` after this exposure."""
         pending = list(context.get_abstract_state(self._pending).get_value())
-        frame = self._expose(context)
         if frame is not None:
             pending.append((context.get_time() + self._params.latency, frame))
         state.get_mutable_abstract_state(self._pending).set_value(pending)

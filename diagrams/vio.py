@@ -1,0 +1,56 @@
+"""Builds the visual-inertial odometry into a diagram (issue 8, L Sec. 5.1): `add_vio` wires the
+`VisualInertialOdometry` system to the vehicle's `imu` and `rgbd` ports; `vio_odometry` is the
+odometry builder for `fly.add_mpc_loop` / `fly_waypoints` (the VIO closes the loop instead of mocap);
+`VioRun` does the same and also logs the VIO's streams (open loop: mocap still flies, the VIO runs
+beside it)."""
+from alight.diagrams.fly import mocap_odometry
+from alight.models import model_path
+from alight.systems.boundary import STATE_ESTIMATE
+from alight.systems.params import load_params
+from alight.systems.sensors.rgbd_camera import RgbdCameraParams
+from alight.systems.vio.estimator import VioParams
+from alight.systems.vio.odometry import VIO_ODOMETRY, VisualInertialOdometry
+
+
+def load_vio_params(filename: str = "vio.yaml") -> VioParams:
+    return load_params(VioParams, model_path(filename))
+
+
+def load_rgbd_camera_params(filename: str = "rgbd_camera.yaml") -> RgbdCameraParams:
+    return load_params(RgbdCameraParams, model_path(filename))
+
+
+def add_vio(builder, vehicle, params: VioParams | None = None,
+            name: str = "vio") -> VisualInertialOdometry:
+    vio = builder.AddNamedSystem(name, VisualInertialOdometry(params or load_vio_params()))
+    builder.Connect(vehicle.GetOutputPort("imu"), vio.GetInputPort("imu"))
+    builder.Connect(vehicle.GetOutputPort("rgbd"), vio.GetInputPort("rgbd"))
+    return vio
+
+
+def vio_odometry(params: VioParams | None = None):
+    """The odometry builder `(builder, vehicle) -> STATE_ESTIMATE port` of the VIO."""
+    return lambda builder, vehicle: add_vio(builder, vehicle, params).GetOutputPort(
+        "state_estimate")
+
+
+class VioRun:
+    """An odometry builder that adds the VIO and remembers it, and a `log(builder, loggers)` that
+    records its `odometry` and `state_estimate` streams. `closed_loop=False`: mocap flies."""
+
+    def __init__(self, params: VioParams | None = None, closed_loop: bool = True):
+        self.params = params or load_vio_params()
+        self.closed_loop = closed_loop
+        self.vio = None
+
+    def __call__(self, builder, vehicle):
+        self.vio = add_vio(builder, vehicle, self.params)
+        if self.closed_loop:
+            return self.vio.GetOutputPort("state_estimate")
+        return mocap_odometry()(builder, vehicle)
+
+    def log(self, builder, loggers) -> None:
+        loggers.add(builder, "vio_odometry", self.vio.GetOutputPort("odometry"), VIO_ODOMETRY,
+                    period=self.params.period)
+        loggers.add(builder, "vio_estimate", self.vio.GetOutputPort("state_estimate"),
+                    STATE_ESTIMATE, period=self.params.period)

@@ -1,0 +1,64 @@
+"""The landmark map seen by the `geometric` forward RGB-D camera (issue 8, L Sec. 5.1; DESIGN.md
+"Simulation fidelity"): the salient points a feature detector would find in the scene, as 3D points
+p_WL in the world. Textured ground (random points on z = 0) plus box-shaped objects standing on it
+(points on their four sides and top), all drawn from one seed so that a scenario is reproducible.
+"""
+import dataclasses as dc
+
+import numpy as np
+
+from alight.systems.params import bounded
+
+
+@dc.dataclass
+class LandmarkMapParams:
+    seed: int = bounded(7, 0, 2 ** 31 - 1)
+    extent: list[float] = bounded([-30.0, -30.0, 30.0, 30.0], -1e4, 1e4, "m")  # x0, y0, x1, y1
+    ground_density: float = bounded(3.0, 0.0, 100.0, "1/m^2")
+    boxes: int = bounded(40, 0, 10000)
+    box_size: list[float] = bounded([0.5, 3.0], 0.05, 50.0, "m")  # edge length range
+    box_density: float = bounded(6.0, 0.0, 100.0, "1/m^2")         # points per m^2 of surface
+
+
+@dc.dataclass(frozen=True)
+class LandmarkMap:
+    """p_WL (N, 3) landmark positions; boxes (M, 6) as x0, y0, x1, y1, height, unused."""
+    p_WL: np.ndarray
+    boxes: np.ndarray
+
+
+def make_landmark_map(params: LandmarkMapParams) -> LandmarkMap:
+    x0, y0, x1, y1 = params.extent
+    if not (x1 > x0 and y1 > y0):
+        raise ValueError(f"landmark map extent {params.extent} must have x1 > x0 and y1 > y0")
+    rng = np.random.default_rng(params.seed)
+    n_ground = rng.poisson(params.ground_density * (x1 - x0) * (y1 - y0))
+    ground = np.column_stack([rng.uniform(x0, x1, n_ground), rng.uniform(y0, y1, n_ground),
+                              np.zeros(n_ground)])
+    points, boxes = [ground], []
+    lo, hi = params.box_size
+    for _ in range(params.boxes):
+        size = rng.uniform(lo, hi, 3)
+        centre = rng.uniform([x0, y0], [x1, y1])
+        if np.hypot(*centre) < 3.0 + size[:2].max():  # keep the take-off spot clear
+            continue
+        boxes.append([*(centre - size[:2] / 2), *(centre + size[:2] / 2), size[2], 0.0])
+        points.append(_box_surface_points(rng, centre, size, params.box_density))
+    return LandmarkMap(np.vstack(points), np.array(boxes).reshape(-1, 6))
+
+
+def _box_surface_points(rng, centre, size, density) -> np.ndarray:
+    """Uniform points on the four sides and the top of a box standing on the ground."""
+    sx, sy, sz = size
+    faces = []
+    for axis, extent_a, extent_b in ((0, sy, sz), (1, sx, sz)):
+        for side in (-0.5, 0.5):
+            n = rng.poisson(density * extent_a * extent_b)
+            a, z = rng.uniform(-0.5, 0.5, n) * extent_a, rng.uniform(0, 1, n) * sz
+            offset = np.full(n, side * size[axis])
+            xy = np.column_stack([offset, a]) if axis == 0 else np.column_stack([a, offset])
+            faces.append(np.column_stack([centre + xy, z]))
+    n = rng.poisson(density * sx * sy)
+    top = rng.uniform(-0.5, 0.5, (n, 2)) * [sx, sy] + centre
+    faces.append(np.column_stack([top, np.full(n, sz)]))
+    return np.vstack(faces)

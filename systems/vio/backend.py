@@ -1,0 +1,183 @@
+"""The VIO back end, L(1)-(4): a sliding window of keyframe states x_R = [p_WS, q_WS, v_WS, b_g, b_a]
+and landmarks, optimizing reprojection errors in the real camera (4), in the virtual stereo camera
+of L(2) and IMU pre-integration errors between keyframes (the cost J of L(3)), with old states
+marginalized so that the cost stays bounded.
+
+Built on GTSAM: `IncrementalFixedLagSmoother` (iSAM2; everything older than `lag` is marginalized
+into a Gaussian prior), `CombinedImuFactor` (IMU pre-integration with bias random walk, Forster et
+al.), `GenericStereoFactor3D` (the real + virtual camera pair: u_left, u_virtual, v) for keypoints
+with depth and `GenericProjectionFactorCal3_S2` (4) for those without, both with a Huber loss.
+The IMU frame S is the body frame B (the vehicle's IMU sits at its origin); X_BC is the camera's
+calibrated mount.
+"""
+import dataclasses as dc
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, L, V, X
+
+from alight.systems.params import bounded
+
+
+@dc.dataclass
+class BackendParams:
+    lag: float = bounded(1.5, 0.1, 30.0, "s")                     # window length
+    keypoint_noise_std: float = bounded(1.0, 0.01, 100.0, "px")   # W_r of L(3)
+    huber_threshold: float = bounded(1.345, 0.1, 100.0)           # in standard deviations
+    gravity: float = bounded(9.81, 9.0, 10.0, "m/s^2")
+    accel_noise_density: float = bounded(0.02, 1e-6, 10.0, "m/s^2/sqrt(Hz)")
+    gyro_noise_density: float = bounded(1.7e-3, 1e-7, 1.0, "rad/s/sqrt(Hz)")
+    accel_bias_random_walk: float = bounded(1e-3, 1e-7, 1.0, "m/s^3/sqrt(Hz)")
+    gyro_bias_random_walk: float = bounded(2e-5, 1e-8, 1.0, "rad/s^2/sqrt(Hz)")
+    initial_position_std: float = bounded(0.01, 1e-4, 100.0, "m")
+    initial_attitude_std: list[float] = bounded([0.5, 0.5, 0.1], 1e-3, 180.0, "deg")  # r, p, yaw
+    initial_velocity_std: float = bounded(0.01, 1e-4, 100.0, "m/s")
+    initial_accel_bias_std: float = bounded(0.1, 1e-5, 10.0, "m/s^2")
+    initial_gyro_bias_std: float = bounded(0.005, 1e-6, 1.0, "rad/s")
+    max_speed: float = bounded(40.0, 1.0, 1000.0, "m/s")          # beyond: the solution diverged
+
+
+@dc.dataclass
+class Observation:
+    """One keypoint of a keyframe: track id, pixel (u, v), virtual-camera u (NaN without depth)
+    and the back-projected point in the camera frame (NaN without depth)."""
+    track: int
+    uv: np.ndarray
+    u_virtual: float
+    p_C: np.ndarray
+
+
+@dc.dataclass
+class KeyframeState:
+    t: float
+    nav: gtsam.NavState
+    bias: gtsam.imuBias.ConstantBias
+    cov_pose: np.ndarray      # 6x6 [rotation, translation] in the body frame (GTSAM's tangent)
+    cov_velocity: np.ndarray  # 3x3 in W
+
+
+class DivergedError(RuntimeError):
+    """The optimizer failed or produced an implausible state; the window must be restarted."""
+
+
+def imu_params(p: BackendParams) -> gtsam.PreintegrationCombinedParams:
+    params = gtsam.PreintegrationCombinedParams.MakeSharedU(p.gravity)
+    params.setAccelerometerCovariance(np.eye(3) * p.accel_noise_density ** 2)
+    params.setGyroscopeCovariance(np.eye(3) * p.gyro_noise_density ** 2)
+    params.setIntegrationCovariance(np.eye(3) * 1e-8)
+    params.setBiasAccCovariance(np.eye(3) * p.accel_bias_random_walk ** 2)
+    params.setBiasOmegaCovariance(np.eye(3) * p.gyro_bias_random_walk ** 2)
+    return params
+
+
+class SlidingWindow:
+    """The fixed-lag smoother over keyframes. `start` puts priors on the first keyframe,
+    `add_keyframe` adds one keyframe with its IMU factor and keypoint factors and optimizes."""
+
+    def __init__(self, params: BackendParams, calibration: dict):
+        self._p = params
+        K = np.asarray(calibration["K"], float)
+        self._K = gtsam.Cal3_S2(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2])
+        self._K_stereo = gtsam.Cal3_S2Stereo(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2],
+                                             float(calibration["baseline"]))
+        self._X_BC = gtsam.Pose3(np.asarray(calibration["X_BC"], float))
+        self._disparity_std = float(calibration.get("disparity_noise_std", 0.0))
+        self.imu_params = imu_params(params)
+        huber = gtsam.noiseModel.mEstimator.Huber.Create(params.huber_threshold)
+        sigma = params.keypoint_noise_std
+        self._mono_noise = gtsam.noiseModel.Robust.Create(
+            huber, gtsam.noiseModel.Isotropic.Sigma(2, sigma))
+        self._stereo_noise = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([sigma, np.hypot(sigma, self._disparity_std), sigma])))
+        self._smoother = None
+        self._k = -1
+        self._landmarks = set()
+        self.state: KeyframeState | None = None
+
+    @property
+    def keyframes(self) -> int:
+        return self._k + 1
+
+    def landmark_count(self) -> int:
+        return len(self._landmarks)
+
+    def knows(self, track: int) -> bool:
+        return track in self._landmarks
+
+    def start(self, t: float, nav: gtsam.NavState, bias: gtsam.imuBias.ConstantBias,
+              observations: list[Observation], position_std=None, attitude_std=None,
+              velocity_std=None) -> KeyframeState:
+        """A new window whose first keyframe at `t` has priors on pose, velocity and bias (the
+        defaults: the initialization from rest; larger ones when restarting after a loss)."""
+        p = self._p
+        self._smoother = gtsam.IncrementalFixedLagSmoother(p.lag, gtsam.ISAM2Params())
+        self._landmarks = set()
+        self._k += 1
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        att = np.radians(p.initial_attitude_std) if attitude_std is None else attitude_std
+        pos = p.initial_position_std if position_std is None else position_std
+        vel = p.initial_velocity_std if velocity_std is None else velocity_std
+        k = self._k
+        graph.add(gtsam.PriorFactorPose3(X(k), nav.pose(), gtsam.noiseModel.Diagonal.Sigmas(
+            np.concatenate([np.broadcast_to(att, 3), np.broadcast_to(pos, 3)]))))
+        graph.add(gtsam.PriorFactorVector(V(k), nav.velocity(),
+                                          gtsam.noiseModel.Isotropic.Sigma(3, vel)))
+        graph.add(gtsam.PriorFactorConstantBias(B(k), bias, gtsam.noiseModel.Diagonal.Sigmas(
+            np.repeat([p.initial_accel_bias_std, p.initial_gyro_bias_std], 3))))
+        values.insert(X(k), nav.pose())
+        values.insert(V(k), nav.velocity())
+        values.insert(B(k), bias)
+        return self._update(t, graph, values, nav.pose(), observations)
+
+    def add_keyframe(self, t: float, pim: gtsam.PreintegratedCombinedMeasurements,
+                     observations: list[Observation]) -> KeyframeState:
+        """Keyframe k+1 at `t`: the IMU factor from keyframe k (`pim` integrated over the frames
+        between), the keypoint factors, one smoother update. Raises DivergedError."""
+        previous = self.state
+        predicted = pim.predict(previous.nav, previous.bias)
+        self._k += 1
+        k = self._k
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        graph.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), pim))
+        values.insert(X(k), predicted.pose())
+        values.insert(V(k), predicted.velocity())
+        values.insert(B(k), previous.bias)
+        return self._update(t, graph, values, predicted.pose(), observations)
+
+    def _update(self, t, graph, values, X_WB: gtsam.Pose3, observations) -> KeyframeState:
+        k = self._k
+        timestamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        for key in (X(k), V(k), B(k)):
+            timestamps.insert((key, t))
+        X_WC = X_WB.compose(self._X_BC)
+        for obs in observations:
+            depth = np.isfinite(obs.u_virtual)
+            if obs.track not in self._landmarks:
+                if not depth:
+                    continue  # a landmark is created from its first observation with depth
+                values.insert(L(obs.track), X_WC.transformFrom(obs.p_C))
+            if depth:
+                graph.add(gtsam.GenericStereoFactor3D(
+                    gtsam.StereoPoint2(obs.uv[0], obs.u_virtual, obs.uv[1]), self._stereo_noise,
+                    X(k), L(obs.track), self._K_stereo, self._X_BC))
+            else:
+                graph.add(gtsam.GenericProjectionFactorCal3_S2(
+                    obs.uv, self._mono_noise, X(k), L(obs.track), self._K, self._X_BC))
+            timestamps.insert((L(obs.track), t))
+        try:
+            self._smoother.update(graph, values, timestamps)
+            estimate = self._smoother.calculateEstimate()
+            pose, velocity = estimate.atPose3(X(k)), estimate.atVector(V(k))
+            bias = estimate.atConstantBias(B(k))
+            cov_pose = self._smoother.marginalCovariance(X(k))
+            cov_velocity = self._smoother.marginalCovariance(V(k))
+        except RuntimeError as e:
+            raise DivergedError(f"smoother update failed: {e}") from None
+        if not (np.all(np.isfinite(pose.matrix())) and np.all(np.isfinite(velocity))
+                and np.linalg.norm(velocity) < self._p.max_speed):
+            raise DivergedError(f"implausible keyframe state: v = {velocity}")
+        self._landmarks = {gtsam.Symbol(key).index() for key in estimate.keys()
+                           if gtsam.Symbol(key).chr() == ord("l")}
+        self.state = KeyframeState(t, gtsam.NavState(pose, velocity), bias, cov_pose,
+                                   cov_velocity)
+        return self.state

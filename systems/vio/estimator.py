@@ -1,0 +1,244 @@
+"""The visual-inertial estimator of L Sec. 5.1 without the Drake wrapper: initialization from rest,
+front end (`frontend`), keyframes into the sliding-window back end (`backend`, L(1)-(4)), and the
+IMU-propagated state between keyframes for control.
+
+States (`VioStatus`): INITIALIZING until a camera frame arrives after `init_duration` s of IMU data
+at rest (roll and pitch from gravity, heading 0: the estimator frame E is the start pose's heading,
+gyro bias from the mean rate, accelerometer bias along gravity from the specific-force magnitude);
+TRACKING while keyframes are added; IMU_ONLY while frames have too few usable keypoints (the state
+is propagated by the IMU alone, its covariance growing); LOST after `max_imu_only` s without a
+keyframe (the estimate is reported invalid). When keypoints come back the window restarts from the
+propagated state with priors as wide as its covariance (recovery), in the same frame E.
+"""
+import dataclasses as dc
+import enum
+import time
+
+import gtsam
+import numpy as np
+
+from alight.systems.boundary import CameraFrame, ImuSamples
+from alight.systems.params import bounded
+from alight.systems.rotations import heading, quaternion_product, rotation_between, rotation_matrix
+from alight.systems.vio.backend import (BackendParams, DivergedError, Observation, SlidingWindow)
+from alight.systems.vio.frontend import (FrontendParams, KltTracker, Keypoints, is_keyframe,
+                                         keypoints_of, virtual_stereo)
+
+
+class VioStatus(enum.IntEnum):
+    INITIALIZING = 0
+    TRACKING = 1
+    IMU_ONLY = 2
+    LOST = 3
+
+
+@dc.dataclass
+class VioParams:
+    period: float = bounded(0.005, 0.0005, 0.1, "s")               # the IMU period
+    initial_position: list[float] = bounded([0.0, 0.0, 0.22], -1e4, 1e4, "m")  # p_EB at rest
+    init_duration: float = bounded(0.5, 0.05, 10.0, "s")
+    rest_accel_std: float = bounded(1.0, 0.01, 10.0, "m/s^2")      # at rest: spread below this,
+    rest_accel_offset: float = bounded(0.5, 0.01, 10.0, "m/s^2")   # mean within this of g
+    rest_gyro: float = bounded(0.05, 0.001, 1.0, "rad/s")          # and mean rate below this
+    min_features: int = bounded(10, 3, 1000)                       # usable keypoints per keyframe
+    imu_only_after: float = bounded(0.25, 0.0, 10.0, "s")          # no keyframe: status IMU_ONLY
+    max_imu_only: float = bounded(2.0, 0.1, 60.0, "s")             # no keyframe: status LOST
+    frontend: FrontendParams = dc.field(default_factory=FrontendParams)
+    backend: BackendParams = dc.field(default_factory=BackendParams)
+
+
+@dc.dataclass
+class Estimate:
+    """The propagated state at `stamp` in E: position, velocity, q_EB, acceleration, biases,
+    standard deviations of position, attitude (in E) and velocity, and the body rate."""
+    stamp: float
+    p: np.ndarray
+    v: np.ndarray
+    q: np.ndarray
+    a: np.ndarray
+    w: np.ndarray
+    b_g: np.ndarray
+    b_a: np.ndarray
+    var_p: np.ndarray
+    var_rot: np.ndarray
+    var_v: np.ndarray
+
+
+class VioEstimator:
+    """`add_imu(samples)` with every IMU sample once, `add_frame(frame)` with every new camera
+    frame, `estimate()` for the latest propagated state (None before initialization)."""
+
+    def __init__(self, params: VioParams):
+        self.p = params
+        self.status = VioStatus.INITIALIZING
+        self.restarts = 0
+        self.frontend_time = 0.0   # s, last frame
+        self.backend_time = 0.0    # s, last keyframe
+        self.tracked = 0
+        self._tracker = KltTracker(params.frontend)
+        self._window: SlidingWindow | None = None
+        self._samples: list[tuple[float, np.ndarray, np.ndarray]] = []  # since the last keyframe
+        self._pim_out = None   # pre-integration from the last keyframe to the newest sample
+        self._t_out = -np.inf  # end of what _pim_out covers
+        self._last_frame = -np.inf
+
+    @property
+    def window(self) -> SlidingWindow | None:
+        return self._window
+
+    # --- IMU ------------------------------------------------------------------------------
+    def add_imu(self, samples: ImuSamples) -> None:
+        for t, f, w in zip(samples.t, samples.accel, samples.gyro):
+            self._samples.append((float(t), np.asarray(f, float), np.asarray(w, float)))
+        if self._pim_out is None:  # not initialized: keep what initialization needs
+            horizon = self._samples[-1][0] - 2 * self.p.init_duration if self._samples else 0.0
+            self._samples = [s for s in self._samples if s[0] >= horizon]
+            return
+        t_end = self._samples[-1][0] + self.p.period if self._samples else self._t_out
+        self._integrate(self._pim_out, self._t_out, t_end)
+        self._t_out = t_end
+        self._update_status(t_end)
+
+    def _integrate(self, pim, t_a: float, t_b: float) -> None:
+        """Each sample holds for one period from its stamp; integrates the part in [t_a, t_b)."""
+        for t, f, w in self._samples:
+            dt = min(t + self.p.period, t_b) - max(t, t_a)
+            if dt > 1e-9:
+                pim.integrateMeasurement(f, w, dt)
+
+    def _update_status(self, t: float) -> None:
+        if self._window is None or self._window.state is None:
+            return
+        age = t - self._window.state.t
+        if age > self.p.max_imu_only:
+            self.status = VioStatus.LOST
+        elif age > self.p.imu_only_after:
+            self.status = VioStatus.IMU_ONLY
+
+    # --- frames -------------------------------------------------------------------------------
+    def add_frame(self, frame: CameraFrame) -> None:
+        if not frame.valid or frame.stamp <= self._last_frame or frame.calibration is None:
+            return
+        self._last_frame = frame.stamp
+        start = time.perf_counter()
+        keypoints = keypoints_of(frame, self._tracker)
+        self.frontend_time = time.perf_counter() - start
+        self.tracked = len(keypoints)
+        if self._window is None:
+            self._window = SlidingWindow(self.p.backend, frame.calibration)
+            self._calibration = frame.calibration
+        if self.status == VioStatus.INITIALIZING:
+            self._initialize(frame.stamp, keypoints)
+            return
+        window = self._window
+        observations = self._observations(keypoints)
+        usable = [o for o in observations if window.knows(o.track) or np.isfinite(o.u_virtual)]
+        known = sum(window.knows(o.track) for o in usable)
+        if not is_keyframe(self.p.frontend, frame.stamp, window.state.t, known, len(usable)):
+            return
+        if len(usable) < self.p.min_features:
+            self._update_status(frame.stamp)
+            return
+        start = time.perf_counter()
+        pim = gtsam.PreintegratedCombinedMeasurements(window.imu_params, window.state.bias)
+        self._integrate(pim, window.state.t, frame.stamp)
+        try:
+            if self.status == VioStatus.LOST:
+                self._restart(frame.stamp, pim, observations)
+            else:
+                window.add_keyframe(frame.stamp, pim, observations)
+        except DivergedError:
+            self._restart(frame.stamp, pim, observations)
+        self.backend_time = time.perf_counter() - start
+        self.status = VioStatus.TRACKING
+        self._after_keyframe()
+
+    def _observations(self, keypoints: Keypoints) -> list[Observation]:
+        K = np.asarray(self._calibration["K"], float)
+        u_virtual, p_C = virtual_stereo(keypoints.uv, keypoints.depth, K,
+                                        float(self._calibration["baseline"]))
+        return [Observation(int(i), uv, float(uv_v), pc) for i, uv, uv_v, pc
+                in zip(keypoints.ids, keypoints.uv, u_virtual, p_C)]
+
+    def _initialize(self, stamp: float, keypoints: Keypoints) -> None:
+        rest = [s for s in self._samples if stamp - self.p.init_duration <= s[0] <= stamp]
+        if not self._samples or self._samples[0][0] > stamp - self.p.init_duration + \
+                self.p.period or len(rest) < 3:
+            return
+        f = np.array([s[1] for s in rest])
+        w = np.array([s[2] for s in rest])
+        norm = np.linalg.norm(f, axis=1)
+        if norm.std() > self.p.rest_accel_std or \
+                abs(norm.mean() - self.p.backend.gravity) > self.p.rest_accel_offset or \
+                np.linalg.norm(w.mean(axis=0)) > self.p.rest_gyro:
+            return
+        f_mean = f.mean(axis=0)
+        q = rotation_between(f_mean / np.linalg.norm(f_mean), np.array([0.0, 0.0, 1.0]))
+        eta = heading(rotation_matrix(q))
+        q = quaternion_product(np.array([np.cos(eta / 2), 0, 0, -np.sin(eta / 2)]), q)
+        R_WB = rotation_matrix(q)
+        b_a = f_mean - R_WB.T @ np.array([0.0, 0.0, self.p.backend.gravity])
+        nav = gtsam.NavState(gtsam.Rot3(R_WB), np.asarray(self.p.initial_position, float),
+                             np.zeros(3))
+        bias = gtsam.imuBias.ConstantBias(b_a, w.mean(axis=0))
+        observations = self._observations(keypoints)
+        if sum(np.isfinite(o.u_virtual) for o in observations) < self.p.min_features:
+            return
+        self._window.start(stamp, nav, bias, observations)
+        self.status = VioStatus.TRACKING
+        self._after_keyframe()
+
+    def _restart(self, stamp: float, pim, observations) -> None:
+        """Recovery: a new window from the IMU-propagated state, priors as wide as its spread."""
+        state = self._window.state
+        propagated = pim.predict(state.nav, state.bias)
+        estimate = self._propagated_covariance(state, pim)
+        self.restarts += 1
+        self._window.start(stamp, propagated, state.bias, observations,
+                           position_std=float(np.clip(np.sqrt(estimate[0].max()), 0.05, 50.0)),
+                           attitude_std=float(np.clip(np.sqrt(estimate[1].max()), 0.005, 0.5)),
+                           velocity_std=float(np.clip(np.sqrt(estimate[2].max()), 0.05, 20.0)))
+
+    def _after_keyframe(self) -> None:
+        t_kf = self._window.state.t
+        self._samples = [s for s in self._samples if s[0] + self.p.period > t_kf]
+        self._pim_out = gtsam.PreintegratedCombinedMeasurements(self._window.imu_params,
+                                                                self._window.state.bias)
+        t_end = self._samples[-1][0] + self.p.period if self._samples else t_kf
+        self._integrate(self._pim_out, t_kf, t_end)
+        self._t_out = max(t_end, t_kf)
+
+    # --- output -------------------------------------------------------------------------------
+    def _propagated_covariance(self, state, pim):
+        """Variances (in E) of position, attitude and velocity after propagating the keyframe's
+        marginals through `pim`: keyframe covariance, velocity uncertainty times time, the
+        pre-integrated IMU noise, and gravity mis-compensated by the attitude error."""
+        R = state.nav.attitude().matrix()
+        dt = pim.deltaTij()
+        cov_rot = R @ state.cov_pose[:3, :3] @ R.T
+        cov_p = R @ state.cov_pose[3:, 3:] @ R.T
+        preint = pim.preintMeasCov()
+        tilt = cov_rot[0, 0] + cov_rot[1, 1]
+        g = self.p.backend.gravity
+        var_p = np.diag(cov_p) + np.diag(state.cov_velocity) * dt ** 2 \
+            + np.diag(R @ preint[3:6, 3:6] @ R.T) + tilt * (0.5 * g * dt ** 2) ** 2
+        var_v = np.diag(state.cov_velocity) + np.diag(R @ preint[6:9, 6:9] @ R.T) \
+            + tilt * (g * dt) ** 2
+        var_rot = np.diag(cov_rot) + np.diag(R @ preint[:3, :3] @ R.T)
+        return var_p, var_rot, var_v
+
+    def estimate(self) -> Estimate | None:
+        if self._window is None or self._window.state is None or self._pim_out is None:
+            return None
+        state = self._window.state
+        nav = self._pim_out.predict(state.nav, state.bias)
+        var_p, var_rot, var_v = self._propagated_covariance(state, self._pim_out)
+        R = nav.attitude().matrix()
+        b_a, b_g = state.bias.accelerometer(), state.bias.gyroscope()
+        f, w = (self._samples[-1][1], self._samples[-1][2]) if self._samples else (
+            R.T @ [0, 0, self.p.backend.gravity] + b_a, b_g)
+        a = R @ (f - b_a) - np.array([0.0, 0.0, self.p.backend.gravity])
+        q = nav.attitude().toQuaternion()
+        return Estimate(self._t_out, nav.position(), nav.velocity(),
+                        np.array([q.w(), q.x(), q.y(), q.z()]), a, w - b_g, b_g, b_a, var_p,
+                        var_rot, var_v)

@@ -1,0 +1,150 @@
+"""The VIO front end (L Sec. 5.1): keypoints with track ids and depth from an RGB-D frame, the
+virtual stereo measurement of L(2), and keyframe selection.
+
+- Rendered frames: Shi-Tomasi corners tracked frame to frame with pyramidal Lucas-Kanade (OpenCV),
+  outliers rejected by RANSAC on the fundamental matrix, new corners detected away from the tracked
+  ones to keep `max_features`; depth looked up per keypoint (median of the valid depths around it).
+- Geometric frames already carry keypoints, track ids and per-keypoint depth.
+
+L(2): z_v = u_v(T_CvC u^-1(z, D)): the keypoint back-projected with its depth, moved into the
+virtual camera (the RGB camera shifted by the infrared baseline along x_C) and projected again with
+the same pinhole. For a rectified pinhole this is u_v = u - f b / z, v_v = v.
+"""
+import dataclasses as dc
+
+import cv2
+import numpy as np
+
+from alight.systems.boundary import CameraFrame
+from alight.systems.params import bounded
+
+
+@dc.dataclass
+class FrontendParams:
+    max_features: int = bounded(150, 8, 5000)
+    min_corner_distance: float = bounded(15.0, 1.0, 200.0, "px")
+    corner_quality: float = bounded(0.01, 1e-4, 1.0)
+    klt_window: int = bounded(21, 5, 101, "px")
+    klt_levels: int = bounded(3, 0, 8)
+    ransac_threshold: float = bounded(1.0, 0.1, 20.0, "px")
+    depth_window: int = bounded(2, 0, 10, "px")            # half size of the depth lookup patch
+    keyframe_period: float = bounded(0.1, 0.0, 5.0, "s")   # at most this long between keyframes
+    keyframe_overlap: float = bounded(0.7, 0.0, 1.0)       # fewer known tracks: a keyframe now
+    min_keyframe_gap: float = bounded(0.03, 0.0, 5.0, "s")
+
+
+@dc.dataclass(frozen=True)
+class Keypoints:
+    """Track ids (N,), pixels (N, 2), depth (N,) [m, NaN: none]."""
+    ids: np.ndarray
+    uv: np.ndarray
+    depth: np.ndarray
+
+    @staticmethod
+    def empty() -> "Keypoints":
+        return Keypoints(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def virtual_stereo(uv: np.ndarray, depth: np.ndarray, K: np.ndarray, baseline: float):
+    """L(2): the virtual camera's u (N,) and the back-projected points p_C (N, 3); NaN where the
+    depth is missing."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    z = np.asarray(depth, float)
+    xy = (uv - K[:2, 2]) / K[[0, 1], [0, 1]]
+    p_C = np.column_stack([xy * z[:, None], z])
+    p_Cv = p_C - [baseline, 0.0, 0.0]  # T_CvC: the virtual camera sits at +b along x_C
+    u_virtual = K[0, 0] * p_Cv[:, 0] / p_Cv[:, 2] + K[0, 2]
+    return u_virtual, p_C
+
+
+def lookup_depth(depth_image: np.ndarray, uv: np.ndarray, half: int) -> np.ndarray:
+    """Median of the valid depths in a (2 half + 1)^2 patch around each pixel (NaN if none)."""
+    h, w = depth_image.shape
+    out = np.full(len(uv), np.nan)
+    for i, (u, v) in enumerate(np.rint(uv).astype(int)):
+        patch = depth_image[max(v - half, 0):min(v + half + 1, h),
+                            max(u - half, 0):min(u + half + 1, w)]
+        valid = patch[np.isfinite(patch) & (patch > 0)]
+        if valid.size:
+            out[i] = np.median(valid)
+    return out
+
+
+class KltTracker:
+    """Corner tracking on the grey image of rendered frames (state: the previous image and its
+    tracked corners with their ids)."""
+
+    def __init__(self, params: FrontendParams):
+        self._p = params
+        self._previous = None
+        self._uv = np.zeros((0, 2), np.float32)
+        self._ids = np.zeros(0, np.int64)
+        self._next_id = 0
+
+    def track(self, frame: CameraFrame) -> Keypoints:
+        p = self._p
+        image = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image,
+                                                                        cv2.COLOR_RGB2GRAY)
+        uv, ids = self._uv, self._ids
+        if self._previous is not None and len(uv):
+            moved, status, _ = cv2.calcOpticalFlowPyrLK(
+                self._previous, image, uv.reshape(-1, 1, 2), None,
+                winSize=(p.klt_window, p.klt_window), maxLevel=p.klt_levels)
+            moved = moved.reshape(-1, 2)
+            h, w = image.shape
+            ok = (status.ravel() == 1) & (moved[:, 0] >= 0) & (moved[:, 0] < w) \
+                & (moved[:, 1] >= 0) & (moved[:, 1] < h)
+            if ok.sum() >= 8:
+                _, inliers = cv2.findFundamentalMat(uv[ok], moved[ok], cv2.FM_RANSAC,
+                                                    p.ransac_threshold, 0.99)
+                if inliers is not None:
+                    ok[np.flatnonzero(ok)[inliers.ravel() == 0]] = False
+            uv, ids = moved[ok], ids[ok]
+        else:
+            uv, ids = np.zeros((0, 2), np.float32), np.zeros(0, np.int64)
+        uv, ids = self._detect(image, uv, ids)
+        self._previous, self._uv, self._ids = image, uv, ids
+        depth = lookup_depth(frame.depth, uv, p.depth_window) if frame.depth is not None \
+            else np.full(len(uv), np.nan)
+        return Keypoints(ids.copy(), uv.astype(float), depth)
+
+    def _detect(self, image, uv, ids):
+        p = self._p
+        wanted = p.max_features - len(uv)
+        if wanted <= p.max_features // 4:
+            return uv, ids
+        mask = np.full(image.shape, 255, np.uint8)
+        for u, v in np.rint(uv).astype(int):
+            cv2.circle(mask, (int(u), int(v)), int(p.min_corner_distance), 0, -1)
+        corners = cv2.goodFeaturesToTrack(image, wanted, p.corner_quality, p.min_corner_distance,
+                                          mask=mask)
+        if corners is None:
+            return uv, ids
+        corners = corners.reshape(-1, 2).astype(np.float32)
+        new_ids = np.arange(self._next_id, self._next_id + len(corners), dtype=np.int64)
+        self._next_id += len(corners)
+        return np.vstack([uv, corners]), np.concatenate([ids, new_ids])
+
+
+def keypoints_of(frame: CameraFrame, tracker: KltTracker) -> Keypoints:
+    """The frame's keypoints: given by a geometric source, tracked in a rendered image."""
+    if frame.keypoints is not None:
+        n = len(frame.keypoints)
+        depth = np.asarray(frame.depth, float) if frame.depth is not None else np.full(n, np.nan)
+        return Keypoints(np.asarray(frame.keypoint_ids, np.int64),
+                         np.asarray(frame.keypoints, float).reshape(n, 2), depth.reshape(n))
+    if frame.image is not None:
+        return tracker.track(frame)
+    return Keypoints.empty()
+
+
+def is_keyframe(params: FrontendParams, t: float, last_keyframe: float, known: int,
+                total: int) -> bool:
+    """A keyframe when `keyframe_period` has passed or too few of the tracks are in the map."""
+    gap = t - last_keyframe
+    if gap < params.min_keyframe_gap:
+        return False
+    return gap >= params.keyframe_period - 1e-6 or known < params.keyframe_overlap * total

@@ -1,0 +1,112 @@
+"""Visual-inertial odometry as a Drake system (issue 8, L Sec. 5.1): the `VioEstimator` (front end,
+GTSAM sliding window over L(3), IMU propagation) sampled at the IMU period.
+
+The estimator holds a GTSAM smoother, which cannot live in a Drake context: like the MPC's OSQP
+workspace it is a member of the system, reset by the initialization event; one system serves one
+simulation at a time. Its outputs are discrete state, so they are reproducible from the context.
+"""
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import STATE_ESTIMATE, CameraFrame, ImuSamples, VectorLayout
+from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.vio.estimator import VioEstimator, VioParams, VioStatus
+
+# `odometry`: L(1) at the last camera frame: stamp [s]; status (VioStatus); p_WS [m], q_WS
+# (w, x, y, z), v_WS [m/s] in the estimator frame E; gyro and accelerometer biases [rad/s, m/s^2];
+# standard deviations of position, attitude (rotation vector in E) and velocity; keypoints in the
+# frame; landmarks in the window; keyframes so far; front-end and back-end time of the last
+# frame/keyframe [s]; stamp of the last keyframe [s]; window restarts after losses.
+VIO_ODOMETRY = VectorLayout("vio_odometry", [
+    ("stamp", 1), ("status", 1), ("p_WS", 3), ("q_WS", 4), ("v_WS", 3), ("b_g", 3), ("b_a", 3),
+    ("std_p", 3), ("std_rot", 3), ("std_v", 3), ("tracked", 1), ("landmarks", 1),
+    ("keyframes", 1), ("frontend_time", 1), ("backend_time", 1), ("last_keyframe", 1),
+    ("restarts", 1)])
+
+VIO_FRAME_ID = 1.0  # the `frame_id` of the VIO's estimator frame in STATE_ESTIMATE (mocap is 0)
+
+
+class VisualInertialOdometry(LeafSystem):
+    """Input  `imu`             ImuSamples (every sample is used once)
+    Input  `rgbd`            CameraFrame of the forward RGB-D camera (geometric or rendered)
+    Output `state_estimate`  STATE_ESTIMATE in E, IMU-propagated every `period` (valid 0 while
+                             initializing or lost)
+    Output `odometry`        VIO_ODOMETRY, updated with every camera frame
+    """
+
+    def __init__(self, params: VioParams):
+        super().__init__()
+        self._params = params
+        self.estimator = VioEstimator(params)
+        self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
+        self._rgbd = self.DeclareAbstractInputPort("rgbd", AbstractValue.Make(CameraFrame()))
+        self._last = self.DeclareAbstractState(AbstractValue.Make((-1, -np.inf)))  # seq, stamp
+        self._estimate = self.DeclareDiscreteState(STATE_ESTIMATE.pack(
+            **_invalid_estimate()))
+        self._odometry = self.DeclareDiscreteState(VIO_ODOMETRY.size)
+        self.DeclareInitializationUnrestrictedUpdateEvent(self._reset)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareStateOutputPort("state_estimate", self._estimate)
+        self.DeclareStateOutputPort("odometry", self._odometry)
+
+    def _reset(self, context, state):
+        self.estimator = VioEstimator(self._params)
+        state.get_mutable_abstract_state(self._last).set_value((-1, -np.inf))
+
+    def _update(self, context, state):
+        seq, stamp = context.get_abstract_state(self._last).get_value()
+        samples = self._imu.Eval(context).newer_than(seq)
+        if len(samples):
+            self.estimator.add_imu(samples)
+            seq = int(samples.seq[-1])
+        frame = self._rgbd.Eval(context)
+        new_frame = frame.valid and frame.stamp > stamp
+        if new_frame:
+            self.estimator.add_frame(frame)
+            stamp = frame.stamp
+        state.get_mutable_abstract_state(self._last).set_value((seq, stamp))
+        previous = context.get_discrete_state(self._estimate).get_value()
+        estimate = self.estimator.estimate()
+        state.get_mutable_discrete_state(self._estimate).set_value(
+            self._state_estimate(context.get_time(), estimate, previous))
+        if new_frame:
+            state.get_mutable_discrete_state(self._odometry).set_value(
+                self._odometry_vector(estimate))
+
+    def _state_estimate(self, t: float, estimate, previous) -> np.ndarray:
+        status = self.estimator.status
+        if estimate is None or status in (VioStatus.INITIALIZING, VioStatus.LOST) or not all(
+                np.all(np.isfinite(x)) for x in (estimate.p, estimate.v, estimate.q, estimate.a)):
+            return STATE_ESTIMATE.pack(**{**_invalid_estimate(), "stamp": t})
+        R = rotation_matrix(estimate.q)
+        return STATE_ESTIMATE.pack(
+            stamp=estimate.stamp, p_EB=estimate.p, v_EB=estimate.v, a_EB=estimate.a,
+            q_EB=estimate.q, heading=heading(R), heading_rate=(R @ estimate.w)[2],
+            var_pv=np.concatenate([estimate.var_p, estimate.var_v]),
+            var_heading=estimate.var_rot[2], frame_id=VIO_FRAME_ID, frame_counter=0.0,
+            p_OldNew=np.zeros(3), q_OldNew=[1.0, 0.0, 0.0, 0.0], valid=1.0)
+
+    def _odometry_vector(self, estimate) -> np.ndarray:
+        e, est = self.estimator, estimate
+        window = e.window
+        values = dict(stamp=np.nan, p_WS=np.nan, q_WS=np.nan, v_WS=np.nan, b_g=np.nan,
+                      b_a=np.nan, std_p=np.nan, std_rot=np.nan, std_v=np.nan)
+        if est is not None:
+            values = dict(stamp=est.stamp, p_WS=est.p, q_WS=est.q, v_WS=est.v, b_g=est.b_g,
+                          b_a=est.b_a, std_p=np.sqrt(est.var_p), std_rot=np.sqrt(est.var_rot),
+                          std_v=np.sqrt(est.var_v))
+        return VIO_ODOMETRY.pack(
+            **values, status=float(e.status), tracked=e.tracked,
+            landmarks=window.landmark_count() if window else 0,
+            keyframes=window.keyframes if window else 0, frontend_time=e.frontend_time,
+            backend_time=e.backend_time,
+            last_keyframe=window.state.t if window and window.state else np.nan,
+            restarts=e.restarts)
+
+
+def _invalid_estimate() -> dict:
+    return dict(stamp=0.0, p_EB=np.zeros(3), v_EB=np.zeros(3), a_EB=np.zeros(3),
+                q_EB=[1.0, 0.0, 0.0, 0.0], heading=0.0, heading_rate=0.0, var_pv=np.full(6, 1e6),
+                var_heading=1e6, frame_id=VIO_FRAME_ID, frame_counter=0.0, p_OldNew=np.zeros(3),
+                q_OldNew=[1.0, 0.0, 0.0, 0.0], valid=0.0)
