@@ -7,6 +7,7 @@ from alight.diagrams.fly import mocap_odometry
 from alight.models import model_path
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.params import load_params
+from alight.systems.sensors.camera_faults import CameraBlackout
 from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.vio.estimator import VioParams
 from alight.systems.vio.odometry import VIO_ODOMETRY, VisualInertialOdometry
@@ -20,11 +21,18 @@ def load_rgbd_camera_params(filename: str = "rgbd_camera.yaml") -> RgbdCameraPar
     return load_params(RgbdCameraParams, model_path(filename))
 
 
-def add_vio(builder, vehicle, params: VioParams | None = None,
-            name: str = "vio") -> VisualInertialOdometry:
+def add_vio(builder, vehicle, params: VioParams | None = None, name: str = "vio",
+            blackouts=None) -> VisualInertialOdometry:
+    """The VIO on the vehicle's `imu` and `rgbd` ports; `blackouts` [(start, end), ...] [s] blank
+    the camera in those windows (a sensor fault, simulation only)."""
     vio = builder.AddNamedSystem(name, VisualInertialOdometry(params or load_vio_params()))
     builder.Connect(vehicle.GetOutputPort("imu"), vio.GetInputPort("imu"))
-    builder.Connect(vehicle.GetOutputPort("rgbd"), vio.GetInputPort("rgbd"))
+    rgbd = vehicle.GetOutputPort("rgbd")
+    if blackouts:
+        blackout = builder.AddNamedSystem(f"{name}_camera_blackout", CameraBlackout(blackouts))
+        builder.Connect(rgbd, blackout.GetInputPort("image"))
+        rgbd = blackout.GetOutputPort("image")
+    builder.Connect(rgbd, vio.GetInputPort("rgbd"))
     return vio
 
 
@@ -38,13 +46,15 @@ class VioRun:
     """An odometry builder that adds the VIO and remembers it, and a `log(builder, loggers)` that
     records its `odometry` and `state_estimate` streams. `closed_loop=False`: mocap flies."""
 
-    def __init__(self, params: VioParams | None = None, closed_loop: bool = True):
+    def __init__(self, params: VioParams | None = None, closed_loop: bool = True,
+                 blackouts=None):
         self.params = params or load_vio_params()
         self.closed_loop = closed_loop
+        self.blackouts = blackouts
         self.vio = None
 
     def __call__(self, builder, vehicle):
-        self.vio = add_vio(builder, vehicle, self.params)
+        self.vio = add_vio(builder, vehicle, self.params, blackouts=self.blackouts)
         if self.closed_loop:
             return self.vio.GetOutputPort("state_estimate")
         return mocap_odometry()(builder, vehicle)

@@ -32,7 +32,7 @@ class VisualInertialOdometry(LeafSystem):
     Input  `rgbd`            CameraFrame of the forward RGB-D camera (geometric or rendered)
     Output `state_estimate`  STATE_ESTIMATE in E, IMU-propagated every `period` (valid 0 while
                              initializing or lost)
-    Output `odometry`        VIO_ODOMETRY, updated with every camera frame
+    Output `odometry`        VIO_ODOMETRY, updated with every camera frame and status change
     """
 
     def __init__(self, params: VioParams):
@@ -70,7 +70,8 @@ class VisualInertialOdometry(LeafSystem):
         estimate = self.estimator.estimate()
         state.get_mutable_discrete_state(self._estimate).set_value(
             self._state_estimate(context.get_time(), estimate, previous))
-        if new_frame:
+        odometry = context.get_discrete_state(self._odometry).get_value()
+        if new_frame or VIO_ODOMETRY.get(odometry, "status") != self.estimator.status:
             state.get_mutable_discrete_state(self._odometry).set_value(
                 self._odometry_vector(estimate))
 
