@@ -1,0 +1,107 @@
+"""VIO parts on their own (issue 8): virtual stereo L(2), and the system fed by hand: initialization
+from rest, a frame without features, a rendered frame with no texture."""
+import numpy as np
+from pydrake.systems.analysis import Simulator
+
+from alight.systems.boundary import STATE_ESTIMATE, CameraFrame, ImuSamples
+from alight.systems.sensors.rgbd_camera import RgbdCameraParams, depth_noise_std
+from alight.systems.vio.estimator import VioParams, VioStatus
+from alight.systems.vio.frontend import virtual_stereo
+from alight.systems.vio.odometry import VIO_ODOMETRY, VisualInertialOdometry
+
+
+def test_virtual_stereo_is_the_rgb_camera_shifted_by_the_baseline():
+    K = np.array([[460.0, 0, 319.5], [0, 460.0, 239.5], [0, 0, 1]])
+    p_C = np.array([[0.4, -0.2, 2.0], [-1.0, 0.5, 5.0]])
+    uv = p_C[:, :2] / p_C[:, 2:] * 460.0 + [319.5, 239.5]
+    u_virtual, back = virtual_stereo(uv, p_C[:, 2], K, 0.1)
+    np.testing.assert_allclose(back, p_C, atol=1e-12)
+    np.testing.assert_allclose(u_virtual, uv[:, 0] - 460.0 * 0.1 / p_C[:, 2])  # disparity f b / z
+    u_missing, _ = virtual_stereo(uv, np.array([np.nan, 5.0]), K, 0.1)
+    assert np.isnan(u_missing[0]) and np.isfinite(u_missing[1])
+
+
+def test_depth_noise_grows_with_the_square_of_range():
+    sigma = depth_noise_std(np.array([1.0, 2.0, 4.0]), 460.0, 0.1, 0.15)
+    np.testing.assert_allclose(sigma / sigma[0], [1, 4, 16])
+    assert 0.01 < sigma[1] < 0.02  # 1.3 cm at 2 m
+
+
+class RestRig:
+    """The VIO alone at rest: level IMU samples (with the configured biases) and frames of
+    fixed landmarks 2-6 m in front of the camera."""
+
+    def __init__(self):
+        self.camera = RgbdCameraParams()
+        self.dut = VisualInertialOdometry(VioParams())
+        self.context = self.dut.CreateDefaultContext()
+        self.simulator = Simulator(self.dut, self.context)
+        self.samples = ImuSamples.empty()
+        self.seq = 0
+        rng = np.random.default_rng(0)
+        self.p_C = np.column_stack([rng.uniform(-1.5, 1.5, (60, 2)), rng.uniform(2, 6, 60)])
+        self.K = self.camera.lens().K
+
+    def frame(self, t, keypoints=True) -> CameraFrame:
+        n = len(self.p_C) if keypoints else 0
+        uv = self.p_C[:n, :2] / self.p_C[:n, 2:] @ self.K[:2, :2].T + self.K[:2, 2]
+        return CameraFrame(stamp=t, calibration=self.camera.calibration(), keypoints=uv,
+                           keypoint_ids=np.arange(n), depth=self.p_C[:n, 2].copy())
+
+    def advance(self, t_end, frame_fn):
+        t = self.context.get_time()
+        while t < t_end - 1e-9:
+            self.samples = self.samples.appended(self.seq, t, [0.05, -0.04, 9.81 + 0.03],
+                                                 [0.004, -0.003, 0.002], 100)
+            self.seq += 1
+            self.dut.GetInputPort("imu").FixValue(self.context, self.samples)
+            self.dut.GetInputPort("rgbd").FixValue(self.context, frame_fn(t))
+            t = round(t + 0.005, 9)
+            self.simulator.AdvanceTo(t)
+
+    def outputs(self):
+        return (self.dut.GetOutputPort("state_estimate").Eval(self.context),
+                self.dut.GetOutputPort("odometry").Eval(self.context))
+
+
+def test_initializes_at_rest_then_survives_frames_without_features():
+    rig = RestRig()
+    rig.advance(1.0, lambda t: rig.frame(np.floor(t * 30) / 30))
+    estimate, odometry = rig.outputs()
+    assert STATE_ESTIMATE.get(estimate, "valid") == 1.0
+    assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.TRACKING
+    np.testing.assert_allclose(STATE_ESTIMATE.get(estimate, "p_EB"), [0, 0, 0.22], atol=0.01)
+    np.testing.assert_allclose(VIO_ODOMETRY.get(odometry, "b_g"), [0.004, -0.003, 0.002],
+                               atol=1e-4)
+    # frames with no keypoints at all (an empty scene): no crash, no NaN, IMU-only, then lost
+    rig.advance(1.5, lambda t: rig.frame(np.floor(t * 30) / 30, keypoints=False))
+    estimate, odometry = rig.outputs()
+    assert np.all(np.isfinite(estimate)) and np.all(np.isfinite(VIO_ODOMETRY.get(odometry,
+                                                                                  "p_WS")))
+    assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.IMU_ONLY
+    assert STATE_ESTIMATE.get(estimate, "valid") == 1.0
+    assert np.linalg.norm(STATE_ESTIMATE.get(estimate, "p_EB") - [0, 0, 0.22]) < 0.05
+    rig.advance(3.7, lambda t: rig.frame(np.floor(t * 30) / 30, keypoints=False))
+    estimate, odometry = rig.outputs()
+    assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.LOST
+    assert STATE_ESTIMATE.get(estimate, "valid") == 0.0 and np.all(np.isfinite(estimate))
+    # features again: the window restarts from the propagated state
+    rig.advance(4.5, lambda t: rig.frame(np.floor(t * 30) / 30))
+    estimate, odometry = rig.outputs()
+    assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.TRACKING
+    assert VIO_ODOMETRY.get(odometry, "restarts") == 1
+    assert STATE_ESTIMATE.get(estimate, "valid") == 1.0
+
+
+def test_a_rendered_frame_without_texture_gives_no_keypoints_and_no_nan():
+    rig = RestRig()
+    rig.advance(1.0, lambda t: rig.frame(np.floor(t * 30) / 30))
+    blank = CameraFrame(stamp=1.0, image=np.zeros((480, 640, 3), np.uint8),
+                        depth=np.full((480, 640), np.nan, np.float32),
+                        calibration=rig.camera.calibration())
+    rig.advance(1.3, lambda t: blank if t < 1.1 else CameraFrame(
+        stamp=np.floor(t * 30) / 30, image=blank.image, depth=blank.depth,
+        calibration=blank.calibration))
+    estimate, odometry = rig.outputs()
+    assert VIO_ODOMETRY.get(odometry, "tracked") == 0
+    assert np.all(np.isfinite(estimate)) and STATE_ESTIMATE.get(estimate, "valid") == 1.0
