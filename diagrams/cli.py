@@ -17,6 +17,8 @@ COMMANDS = {
              "jump) with the SE(3) or MPC force-feedback controller",
     "thrust-curve": "hover the simulated vehicle at several masses and fit the thrust curve "
                     "M(32)",
+    "vio-eval": "fly waypoints with the visual-inertial odometry (in the loop or beside mocap) "
+                "and report ATE, RPE per metre and processing time; TUM files for evo",
 }
 
 
@@ -394,7 +396,32 @@ def make_parser() -> argparse.ArgumentParser:
     campaign.add_argument("--out", default="runs/campaign",
                           help="campaign folder (runs.csv, summary, run folders); rerun resumes")
     campaign.set_defaults(run=_campaign)
+    vio = sub.add_parser("vio-eval", help=COMMANDS["vio-eval"], description=COMMANDS["vio-eval"])
+    _add_common(vio)
+    vio.add_argument("--waypoints", default="0,0,2; 6,0,2; 6,6,3; 0,0,2",
+                     metavar="'X,Y,Z; ...'", help="waypoints in E [m]")
+    vio.add_argument("--camera", default="rgbd_camera.yaml",
+                     help="forward RGB-D camera YAML (source geometric or rendered)")
+    vio.add_argument("--open-loop", action="store_true", help="mocap flies, the VIO runs beside")
+    vio.set_defaults(run=_vio_eval)
     return parser
+
+
+def _vio_eval(args) -> int:
+    from alight.diagrams.fly import parse_waypoints
+    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.vio import evaluate_vio, fly_vio, load_rgbd_camera_params
+    try:
+        waypoints = parse_waypoints(args.waypoints)
+    except ValueError as e:
+        print(f"alight vio-eval: {e}", file=sys.stderr)
+        return 2
+    run = fly_vio(_vehicle_config(args), waypoints, args.seed,
+                  args.run_dir or default_run_dir("vio-eval", args.seed),
+                  closed_loop=not args.open_loop, camera=load_rgbd_camera_params(args.camera))
+    for key, value in evaluate_vio(run).items():
+        print(f"{key:16s}{value:.4g}" if isinstance(value, float) else f"{key:16s}{value}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,37 @@
+"""VIO figures (issue 8): per-frame front-end and back-end time, ATE, RPE per metre and final drift
+for the geometric and rendered sources, on the same waypoint flight (closed loop). Prints figures;
+asserts nothing. `python bench/vio.py [--sources geometric,rendered] [--seeds 0,1]`."""
+import argparse
+import dataclasses as dc
+import tempfile
+import time
+
+from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+from alight.diagrams.vio import evaluate_vio, fly_vio, load_rgbd_camera_params
+
+WAYPOINTS = [[0, 0, 2], [6, 0, 2], [6, 6, 3], [0, 0, 2]]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--sources", default="geometric,rendered")
+    parser.add_argument("--seeds", default="0")
+    args = parser.parse_args()
+    print(f"{'source':10s} {'seed':>4s} {'path m':>7s} {'ATE m':>7s} {'RPE/m':>7s} {'drift':>7s} "
+          f"{'front ms':>8s} {'back ms':>8s} {'back max':>8s} {'restarts':>8s} {'wall s':>7s}")
+    for source in args.sources.split(","):
+        for seed in [int(s) for s in args.seeds.split(",")]:
+            camera = dc.replace(load_rgbd_camera_params(), source=source)
+            start = time.perf_counter()
+            with tempfile.TemporaryDirectory() as run_dir:
+                run = fly_vio(load_sim_vehicle_config(), WAYPOINTS, seed, run_dir, camera=camera)
+                r = evaluate_vio(run)
+            wall = time.perf_counter() - start
+            print(f"{source:10s} {seed:4d} {r['travelled']:7.1f} {r['ate_rmse']:7.3f} "
+                  f"{r['rpe_per_m']:7.4f} {r['final_drift']:7.4f} {r['frontend_ms']:8.2f} "
+                  f"{r['backend_ms']:8.1f} {r['backend_max_ms']:8.1f} {r['restarts']:8d} "
+                  f"{wall:7.1f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
