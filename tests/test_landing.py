@@ -71,9 +71,9 @@ def test_target_swerving_in_landing_phase_2_is_scored_failed_by_the_physics(tmp_
 
 
 def _short_scenario(tmp_path):
-    """The field scenario cut at 14 s (take-off only): cheap campaign runs."""
+    """The field scenario cut at 8 s (climbing): cheap campaign runs."""
     data = yaml.safe_load(model_path("scenario_field.yaml").read_text())
-    data["max_duration"] = 14.0
+    data["max_duration"] = 8.0
     path = tmp_path / "short.yaml"
     path.write_text(yaml.safe_dump(data))
     return str(path)
