@@ -126,6 +126,21 @@ class ControllerLoop:
     reference_port: object
 
 
+def add_faulty_mocap(builder, vehicle, period: float, faults: EstimateFaultParams | None = None,
+                     mocap: MocapParams | None = None):
+    """Mocap odometry of `vehicle` and, when `faults` is active, the fault injector after it:
+    (the true mocap port, the port the controllers read)."""
+    mocap_port = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
+    if faults is None or not faults.active:
+        return mocap_port, mocap_port
+    injector = builder.AddNamedSystem("estimate_faults", EstimateFaults(faults))
+    noise = builder.AddNamedSystem("estimate_fault_noise", RandomSource(
+        RandomDistribution.kGaussian, 6, period))
+    builder.Connect(noise.get_output_port(), injector.GetInputPort("noise"))
+    builder.Connect(mocap_port, injector.GetInputPort("state_estimate"))
+    return mocap_port, injector.GetOutputPort("state_estimate")
+
+
 def add_controller_loop(builder, vehicle_diagram, controllers_config: ControllersConfig,
                         trajectory: ref.Trajectory, names: list[str], start_times: list[float],
                         faults: EstimateFaultParams | None = None,
@@ -133,15 +148,8 @@ def add_controller_loop(builder, vehicle_diagram, controllers_config: Controller
     """Vehicle + mocap (+ fault injector) + the named controllers, controller i active from
     start_times[i], following the analytic `trajectory`."""
     vehicle = builder.AddNamedSystem("vehicle", vehicle_diagram)
-    mocap_port = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
-    estimate = mocap_port
-    if faults is not None and faults.active:
-        injector = builder.AddNamedSystem("estimate_faults", EstimateFaults(faults))
-        noise = builder.AddNamedSystem("estimate_fault_noise", RandomSource(
-            RandomDistribution.kGaussian, 6, controllers_config.period))
-        builder.Connect(noise.get_output_port(), injector.GetInputPort("noise"))
-        builder.Connect(mocap_port, injector.GetInputPort("state_estimate"))
-        estimate = injector.GetOutputPort("state_estimate")
+    mocap_port, estimate = add_faulty_mocap(builder, vehicle, controllers_config.period, faults,
+                                            mocap)
     reference = builder.AddNamedSystem("reference", ref.AnalyticReference(
         trajectory, controllers_config.period))
     switch = builder.AddNamedSystem("switch", TimedSwitch(start_times, controllers_config.period))

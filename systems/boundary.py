@@ -202,7 +202,10 @@ CONTROLLER_STATUS = VectorLayout("controller_status", [
 # computes), `last_command` (FC_COMMAND: the command last issued by whichever controller was active;
 # a controller that becomes active starts from it, M Sec. 7.2), and outputs `fc_command`
 # (FC_COMMAND, never NaN or out of range) and `controller_status` (CONTROLLER_STATUS). Controllers
-# may add outputs of their own (e.g. `desired_acceleration`, M(53)).
+# may add outputs of their own (e.g. `desired_acceleration`, M(53)). Optional pair: a controller
+# with a `disturbance_estimate` output and a `last_disturbance` input (DISTURBANCE_ESTIMATE of
+# alight.systems.control.disturbance) gets, through the control manager, the previous active
+# controller's disturbance and mass estimates at activation (M Sec. 7.2).
 CONTROLLER_INPUTS = {"state_estimate": STATE_ESTIMATE, "reference": REFERENCE, "active": None,
                      "last_command": FC_COMMAND}
 CONTROLLER_OUTPUTS = {"fc_command": FC_COMMAND, "controller_status": CONTROLLER_STATUS}

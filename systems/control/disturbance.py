@@ -86,6 +86,22 @@ def estimate_vector(nominal: float, state: np.ndarray, eta: float) -> np.ndarray
     return DISTURBANCE_ESTIMATE.pack(d_w=d_w[:2], d_b=d_b[:2], m_e=estimated_mass(nominal, state))
 
 
+def state_from_estimate(estimate: np.ndarray, nominal: float, eta: float,
+                        limits: DisturbanceLimits) -> np.ndarray | None:
+    """The integrator state that publishes `estimate` (DISTURBANCE_ESTIMATE) at heading `eta`:
+    the inverse of `estimate_vector`, clipped to `limits`; None when `estimate` is not finite.
+    How a controller takes over the previous one's estimates (M Sec. 7.2)."""
+    estimate = np.asarray(estimate, dtype=float)
+    if estimate.size != DISTURBANCE_ESTIMATE.size or not np.all(np.isfinite(estimate)):
+        return None
+    d_b = np.append(DISTURBANCE_ESTIMATE.get(estimate, "d_b"), 0.0)
+    return DISTURBANCE.pack(
+        world=np.clip(DISTURBANCE_ESTIMATE.get(estimate, "d_w"), -limits.world, limits.world),
+        body_sum=np.clip((heading_matrix(eta).T @ d_b)[:2], -limits.body, limits.body),
+        mass_difference=np.clip(DISTURBANCE_ESTIMATE.get(estimate, "m_e") - nominal,
+                                -limits.mass, limits.mass))
+
+
 def reexpress(state: np.ndarray, R_OldNew: np.ndarray) -> np.ndarray:
     """The integrators after the estimator frame changes from Old to New (M Sec. 3.5): the world
     disturbance is a vector in the frame and turns with it; the heading-frame sum and the mass

@@ -18,7 +18,9 @@ activation it starts from `last_command` (M Sec. 7.2): its thrust is the start o
 (rate `thrust_ramp_rate`) toward the computed thrust, so the hand-over (or the take-off from the
 ground, where the last command is zero thrust) has no thrust step; when the last command was
 flying, its apparent mass M(34) on the current tilt seeds the mass estimate. The disturbance
-integrators start at zero and are frozen while the ramp lasts. When the estimator frame changes
+integrators start at zero, or, when the optional input `last_disturbance` is connected (the control
+manager forwards the previous controller's `disturbance_estimate`) and finite, from the previous
+controller's estimates; they are frozen while the ramp lasts. When the estimator frame changes
 (frame_counter), the integrators are re-expressed in the new frame (M Sec. 3.5).
 
 Estimate latency: the state estimate is predicted from its `stamp` to the tick time (at most
@@ -111,7 +113,8 @@ class ForceController(LeafSystem):
     docstring. Subclasses implement `_feedback_acceleration`.
 
     Inputs  `state_estimate` STATE_ESTIMATE (frame E, z up); `reference` REFERENCE (chi, M(16));
-            `active` (1); `last_command` FC_COMMAND (the command last issued by any controller)
+            `active` (1); `last_command` FC_COMMAND (the command last issued by any controller);
+            `last_disturbance` DISTURBANCE_ESTIMATE (optional: the previous controller's)
     Outputs `fc_command` FC_COMMAND (body rates + thrust); `controller_status` CONTROLLER_STATUS;
             `desired_acceleration` (3) the unbiased desired acceleration M(53) [m/s^2, in E];
             `disturbance_estimate` DISTURBANCE_ESTIMATE (d_w, d_b [N, in E], m_e [kg])
@@ -130,6 +133,8 @@ class ForceController(LeafSystem):
         self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
         self._active = self.DeclareVectorInputPort("active", 1)
         self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
+        self._last_disturbance = self.DeclareVectorInputPort("last_disturbance",
+                                                             DISTURBANCE_ESTIMATE.size)
         self._command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
         self._status = self.DeclareDiscreteState(status_vector(ControllerReason.INACTIVE))
         self._acceleration = self.DeclareDiscreteState(3)
@@ -197,6 +202,11 @@ class ForceController(LeafSystem):
             if apparent > 0.5 * self._vehicle.mass:
                 state[DISTURBANCE.slice("mass_difference")] = np.clip(
                     apparent - self._vehicle.mass, -self._limits.mass, self._limits.mass)
+        if armed and estimate is not None and self._last_disturbance.HasValue(context):
+            handed = disturbance.state_from_estimate(
+                self._last_disturbance.Eval(context), self._vehicle.mass,
+                STATE_ESTIMATE.get(estimate, "heading"), self._limits)
+            state = state if handed is None else handed
         x[_INTERNAL.slice("was_active")] = 1.0
         x[_INTERNAL.slice("ramping")] = 1.0
         x[_INTERNAL.slice("ramp_thrust")] = thrust

@@ -4,7 +4,8 @@ estimator noise (M Sec. 8.3, Fig. 12) and an estimator position jump (M Sec. 8.4
 From `noise_start` on, white Gaussian noise of standard deviation `noise_std` is added to the
 position [m] and to the velocity [m/s] of the STATE_ESTIMATE (and its variances grow to match);
 from `jump_time` on, the position is offset by `jump` [m] (a relocalization: the velocity is
-unchanged). The noise comes from a Drake `RandomSource`, so runs are reproducible from the seed.
+unchanged); with `loss`, from `loss_time` on, the estimate is lost (valid = 0). The noise comes
+from a Drake `RandomSource`, so runs are reproducible from the seed.
 Not onboard code: it models a bad localization system.
 """
 import dataclasses as dc
@@ -22,10 +23,12 @@ class EstimateFaultParams:
     noise_start: float = bounded(0.0, 0.0, 1e6, "s")
     jump: list[float] = bounded([0.0, 0.0, 0.0], -1e4, 1e4, "m")
     jump_time: float = bounded(0.0, 0.0, 1e6, "s")
+    loss: bool = False                                   # the estimate is lost (valid = 0) ...
+    loss_time: float = bounded(0.0, 0.0, 1e6, "s")       # ... from this time on
 
     @property
     def active(self) -> bool:
-        return self.noise_std > 0.0 or bool(np.any(np.asarray(self.jump) != 0.0))
+        return self.noise_std > 0.0 or bool(np.any(np.asarray(self.jump) != 0.0)) or self.loss
 
 
 class EstimateFaults(LeafSystem):
@@ -52,4 +55,6 @@ class EstimateFaults(LeafSystem):
             estimate[L.slice("var_pv")] += self._p.noise_std ** 2
         if t >= self._p.jump_time:
             estimate[L.slice("p_EB")] += np.asarray(self._p.jump)
+        if self._p.loss and t >= self._p.loss_time:
+            estimate[L.slice("valid")] = 0.0
         output.SetFromVector(estimate)

@@ -1,0 +1,203 @@
+"""The control manager's diagram, M Sec. 7.2: the controllers listed in models/control_manager.yaml,
+each built by its factory, wired to one `ControlManager` (systems/control/control_manager.py).
+
+Adding a controller is one LeafSystem that follows the controller contract of
+alight.systems.boundary and one entry in the YAML list (`name`, `factory: "module:function"`);
+docs/controllers.md has a worked example. `fly_managed` flies the simulated vehicle on mocap
+odometry (with the fault injector) along an analytic reference under the manager.
+"""
+import dataclasses as dc
+import importlib
+from pathlib import Path
+
+from pydrake.systems.framework import DiagramBuilder
+
+from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
+                                         make_controller)
+from alight.diagrams.hover import default_run_dir
+from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
+from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.simulation import simulate
+from alight.diagrams.track import add_faulty_mocap
+from alight.models import model_path
+from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_STATUS,
+                                     REFERENCE, STATE_ESTIMATE)
+from alight.systems.control import analytic_reference as ref
+from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
+                                                    EmergencyParams, SafetyArea)
+from alight.systems.params import ConfigError, bounded, load_params
+from alight.systems.sensors.estimate_faults import EstimateFaultParams
+
+
+@dc.dataclass
+class ControllerEntry:
+    """One loaded controller: a built-in name (CONTROLLERS) or any name with a factory
+    "package.module:function" taking the ControllersConfig and returning the LeafSystem."""
+    name: str = ""
+    factory: str = ""
+
+
+@dc.dataclass
+class ControlManagerConfig:
+    period: float = bounded(0.01, 0.001, 0.1, "s")
+    controllers_file: str = "controllers.yaml"
+    controllers: list[ControllerEntry] = dc.field(default_factory=lambda: [
+        ControllerEntry(name) for name in CONTROLLERS])
+    initial_controller: str = "se3"
+    failsafe_controller: str = "failsafe"
+    emergency_controller: str = "se3"
+    safety_area: SafetyArea = dc.field(default_factory=SafetyArea)
+    emergency: EmergencyParams = dc.field(default_factory=EmergencyParams)
+
+    @property
+    def names(self) -> list[str]:
+        return [entry.name for entry in self.controllers]
+
+
+def load_control_manager_config(filename: str = "control_manager.yaml") -> ControlManagerConfig:
+    """A path, or a file name in models/; raises ConfigError naming the file and the key."""
+    path = model_path(filename)
+    config = load_params(ControlManagerConfig, path)
+    check_control_manager_config(config, str(path))
+    return config
+
+
+def check_control_manager_config(config: ControlManagerConfig, source: str = "<config>"):
+    names = config.names
+    if not names or len(set(names)) != len(names) or "" in names:
+        raise ConfigError(f"{source}: key 'controllers' needs unique, non-empty names: {names}")
+    for entry in config.controllers:
+        if not entry.factory and entry.name not in CONTROLLERS:
+            raise ConfigError(f"{source}: key 'controllers': {entry.name!r} is not a built-in "
+                              f"controller {list(CONTROLLERS)} and has no factory")
+    for key in ("initial_controller", "failsafe_controller", "emergency_controller"):
+        if getattr(config, key) not in names:
+            raise ConfigError(f"{source}: key '{key}' = {getattr(config, key)!r} is not one of "
+                              f"the listed controllers {names}")
+    try:
+        config.safety_area.validate()
+    except ValueError as e:
+        raise ConfigError(f"{source}: {e}") from None
+
+
+def build_controller(entry: ControllerEntry, controllers_config: ControllersConfig):
+    """The LeafSystem of one YAML entry, checked against the controller contract."""
+    if not entry.factory:
+        return make_controller(entry.name, controllers_config)
+    module_name, _, function_name = entry.factory.partition(":")
+    try:
+        factory = getattr(importlib.import_module(module_name), function_name)
+    except (ImportError, AttributeError, ValueError) as e:
+        raise ConfigError(f"controller {entry.name!r}: cannot load factory "
+                          f"{entry.factory!r} (expected 'package.module:function'): {e}") from None
+    system = factory(controllers_config)
+    missing = [f"input {p}" for p in CONTROLLER_INPUTS if not system.HasInputPort(p)] + \
+        [f"output {p}" for p in CONTROLLER_OUTPUTS if not system.HasOutputPort(p)]
+    if missing:
+        raise ConfigError(f"controller {entry.name!r} from {entry.factory!r} does not follow the "
+                          f"controller contract (alight.systems.boundary): missing {missing}")
+    return system
+
+
+def parse_switch(text: str, names: list[str]) -> tuple[float, str]:
+    """`T:NAME` of `--switch-controller-at` -> (T [s], NAME)."""
+    time_text, _, name = text.partition(":")
+    try:
+        t = float(time_text)
+    except ValueError:
+        raise ValueError(f"switch {text!r}: expected TIME:NAME, e.g. 12.5:mpc") from None
+    if not t >= 0.0 or name not in names:
+        raise ValueError(f"switch {text!r}: time must be >= 0 and the name one of {names}")
+    return t, name
+
+
+@dc.dataclass
+class ManagedControllers:
+    manager: ControlManager
+    controllers: dict  # name -> LeafSystem
+
+
+def add_control_manager(builder, config: ControlManagerConfig,
+                        controllers_config: ControllersConfig, state_estimate, goal,
+                        switch_request=None, schedule: list[tuple[float, str]] | None = None
+                        ) -> ManagedControllers:
+    """The listed controllers and the manager, fed by the `state_estimate` and `goal` (REFERENCE)
+    ports; connect the manager's `fc_command` to the vehicle."""
+    manager = builder.AddNamedSystem("control_manager", ControlManager(
+        config.names, config.initial_controller, config.failsafe_controller,
+        config.emergency_controller, config.safety_area, config.emergency,
+        controllers_config.vehicle, config.period, schedule))
+    builder.Connect(state_estimate, manager.GetInputPort("state_estimate"))
+    builder.Connect(goal, manager.GetInputPort("goal"))
+    if switch_request is not None:
+        builder.Connect(switch_request, manager.GetInputPort("switch_request"))
+    controllers = {}
+    for i, entry in enumerate(config.controllers):
+        controller = builder.AddNamedSystem(f"controller_{entry.name}",
+                                            build_controller(entry, controllers_config))
+        builder.Connect(state_estimate, controller.GetInputPort("state_estimate"))
+        builder.Connect(manager.GetOutputPort("reference"), controller.GetInputPort("reference"))
+        builder.Connect(manager.GetOutputPort(f"active_{i}"), controller.GetInputPort("active"))
+        builder.Connect(manager.GetOutputPort("fc_command"),
+                        controller.GetInputPort("last_command"))
+        builder.Connect(controller.GetOutputPort("fc_command"),
+                        manager.GetInputPort(f"fc_command_{i}"))
+        builder.Connect(controller.GetOutputPort("controller_status"),
+                        manager.GetInputPort(f"controller_status_{i}"))
+        if controller.HasOutputPort("disturbance_estimate"):
+            builder.Connect(controller.GetOutputPort("disturbance_estimate"),
+                            manager.GetInputPort(f"disturbance_estimate_{i}"))
+        if controller.HasInputPort("last_disturbance"):
+            builder.Connect(manager.GetOutputPort("last_disturbance"),
+                            controller.GetInputPort("last_disturbance"))
+        controllers[entry.name] = controller
+    return ManagedControllers(manager, controllers)
+
+
+def add_managed_logging(builder, vehicle, managed: ManagedControllers, state_estimate, goal,
+                        period: float) -> RunLoggers:
+    """The vehicle's streams and command, the estimate, the goal and the issued reference, the
+    manager's status and every controller's status."""
+    manager = managed.manager
+    loggers = add_run_logging(builder, vehicle, manager.GetOutputPort("fc_command"))
+    loggers.add(builder, "state_estimate", state_estimate, STATE_ESTIMATE, period)
+    loggers.add(builder, "goal", goal, REFERENCE, period)
+    loggers.add(builder, "reference", manager.GetOutputPort("reference"), REFERENCE, period)
+    loggers.add(builder, "manager_status", manager.GetOutputPort("manager_status"),
+                MANAGER_STATUS, period)
+    for name, controller in managed.controllers.items():
+        loggers.add(builder, f"status_{name}", controller.GetOutputPort("controller_status"),
+                    CONTROLLER_STATUS, period)
+    return loggers
+
+
+def fly_managed(vehicle_config: SimVehicleConfig, trajectory: ref.Trajectory, seed: int = 0,
+                run_dir=None, config: ControlManagerConfig | None = None,
+                controllers_config: ControllersConfig | None = None,
+                faults: EstimateFaultParams | None = None,
+                schedule: list[tuple[float, str]] | None = None, duration: float | None = None,
+                switch_request_source=None, meshcat=None, realtime_rate: float = 0.0) -> RunLog:
+    """Flies the analytic `trajectory` (the goal) under the control manager and writes a run
+    folder. `switch_request_source(builder)` may return a port for `switch_request`."""
+    config = config or load_control_manager_config()
+    controllers_config = controllers_config or load_controllers_config(config.controllers_file)
+    builder = DiagramBuilder()
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
+    _, estimate = add_faulty_mocap(builder, vehicle, config.period, faults)
+    goal = builder.AddNamedSystem("goal", ref.AnalyticReference(trajectory, config.period))
+    request = switch_request_source(builder) if switch_request_source else None
+    managed = add_control_manager(builder, config, controllers_config, estimate,
+                                  goal.GetOutputPort("reference"), request, schedule)
+    builder.Connect(managed.manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    loggers = add_managed_logging(builder, vehicle, managed, estimate,
+                                  goal.GetOutputPort("reference"), config.period)
+    diagram = builder.Build()
+    duration = trajectory.duration if duration is None else duration
+    simulator = simulate(diagram, duration, seed, meshcat, realtime_rate=realtime_rate)
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("managed", seed)
+    write_run_folder(run_dir, loggers, simulator.get_context(), {
+        "command": "managed", "seed": seed, "duration": duration, "marks": trajectory.marks,
+        "controllers": config.names, "schedule": schedule or [], "faults": faults,
+        "control_manager": config, "vehicle_config": vehicle_config,
+        "controllers_config": controllers_config})
+    return RunLog(run_dir)

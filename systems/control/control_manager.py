@@ -1,0 +1,416 @@
+"""The control manager, M Sec. 7.2: picks the active controller, holds the safety area, watches the
+control error (emergency landing, failsafe) and forwards the active controller's command.
+
+Controllers follow the controller contract of alight.systems.boundary. The manager decides, at
+every tick, which controller is active:
+
+- a switch request on the `switch_request` input ([request id, controller index]: a new id > 0
+  asks for the controller at that index of the YAML list; id 0 is no request) or a scheduled
+  switch (time, name) given to the constructor (`--switch-controller-at T:NAME`) changes the
+  active controller while the manager is in NORMAL mode;
+- a control error |p_ref - p_EB| over `emergency.threshold` starts the emergency landing
+  (mode ELAND): the `emergency_controller` follows a reference that holds the estimated position
+  of that moment horizontally and descends at `emergency.descent_speed` (the landoff tracker's
+  landing, M Sec. 4.2: the reference goes below the estimate); touchdown is when the apparent
+  mass M(34) of the issued thrust stays under `touchdown_mass_fraction` of the vehicle's mass for
+  `touchdown_time`; then the manager disarms (mode LANDED);
+- no valid state estimate, an active controller reporting `valid = 0` on `controller_status`, a
+  non-finite or out-of-range command, or a control error over `failsafe_threshold` switch to the
+  feedforward `failsafe_controller` (M Sec. 5.10, mode FAILSAFE). There is no way back from
+  FAILSAFE or LANDED. Until the first valid estimate (the odometry starting up, the vehicle on
+  the ground) the manager watches nothing: it waits.
+
+The switch timing is the activation contract's: the decision is a function of the inputs and the
+manager's state at the tick, so the `active_i` outputs change at the same tick as the manager's
+state, the newly active controller computes at that tick and reads, as `last_command`, the command
+the previous one issued (the manager's `fc_command` output still forwards it until the update),
+and, as `last_disturbance`, the previous one's disturbance and mass estimates (M Sec. 7.2: "the
+newly activated plugin is given the last state and result of the previously-active plugin").
+
+Safety area: the goal reference (`goal`, REFERENCE, in the estimator frame E) is checked sample
+by sample against a polygon in x-y and height limits in z. The first sample outside is refused
+with a reason (`manager_status.refusal`) and the vehicle holds at the last accepted reference
+position (zero velocity, acceleration, jerk; heading kept) until the goal comes back inside within
+`rejoin_distance` of the hold point.
+
+Estimator frame changes (frame_counter, M Sec. 3.5): the hold point, the emergency landing's start
+and the last issued reference are re-expressed in the new frame. The safety area is given in E.
+"""
+import dataclasses as dc
+import enum
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
+                                     VectorLayout)
+from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
+from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
+                                                     command_is_usable, level_command)
+from alight.systems.params import bounded
+from alight.systems.rotations import heading, rotation_matrix
+
+
+class ManagerMode(enum.IntEnum):
+    NORMAL = 0
+    ELAND = 1      # emergency landing on the emergency controller
+    FAILSAFE = 2   # the feedforward failsafe controller
+    LANDED = 3     # touched down after the emergency landing: disarmed
+
+
+class Refusal(enum.IntEnum):
+    """`manager_status.refusal`: why the last goal sample or switch request was refused."""
+    NONE = 0
+    OUTSIDE_POLYGON = 1
+    BELOW_MIN_HEIGHT = 2
+    ABOVE_MAX_HEIGHT = 3
+    NOT_FINITE = 4
+    UNKNOWN_CONTROLLER = 5    # switch request to an index not in the list
+    NOT_IN_NORMAL_MODE = 6    # switch request during ELAND / FAILSAFE / LANDED
+
+
+class FailsafeCause(enum.IntEnum):
+    NONE = 0
+    BAD_ESTIMATE = 1
+    BAD_CONTROLLER = 2   # valid = 0 on controller_status, or an unusable command
+    CONTROL_ERROR = 3
+
+
+# `manager_status`: index of the active controller; ManagerMode; Refusal of the last refused goal
+# sample or switch request; held (1 while the safety area holds the vehicle); the control error
+# |p_ref - p_EB| [m]; FailsafeCause; the number of controller switches so far.
+MANAGER_STATUS = VectorLayout("manager_status", [
+    ("active", 1), ("mode", 1), ("refusal", 1), ("held", 1), ("control_error", 1),
+    ("failsafe_cause", 1), ("switches", 1)])
+
+
+@dc.dataclass
+class SafetyArea:
+    """A polygon in x-y of the estimator frame E and height limits of z in E, M Sec. 7.2."""
+    enabled: bool = True
+    polygon: list[list[float]] = dc.field(
+        default_factory=lambda: [[-50.0, -50.0], [50.0, -50.0], [50.0, 50.0], [-50.0, 50.0]])
+    min_height: float = bounded(-1.0, -1e4, 1e4, "m")
+    max_height: float = bounded(20.0, -1e4, 1e4, "m")
+    rejoin_distance: float = bounded(0.5, 0.0, 1e3, "m")
+
+    def validate(self) -> None:
+        """Raises ValueError naming the key when the polygon or the height limits are unusable."""
+        polygon = np.asarray(self.polygon, dtype=float)
+        if polygon.ndim != 2 or polygon.shape[1] != 2 or len(polygon) < 3:
+            raise ValueError(f"safety_area.polygon must be at least 3 [x, y] vertices, got "
+                             f"{self.polygon}")
+        if self.min_height >= self.max_height:
+            raise ValueError(f"safety_area: min_height {self.min_height} must be below "
+                             f"max_height {self.max_height}")
+
+    def check(self, p: np.ndarray) -> Refusal:
+        """Refusal.NONE when `p` [m, in E] is allowed."""
+        if not self.enabled:
+            return Refusal.NONE
+        if not np.all(np.isfinite(p)):
+            return Refusal.NOT_FINITE
+        if p[2] < self.min_height:
+            return Refusal.BELOW_MIN_HEIGHT
+        if p[2] > self.max_height:
+            return Refusal.ABOVE_MAX_HEIGHT
+        if not inside_polygon(p[:2], np.asarray(self.polygon, dtype=float)):
+            return Refusal.OUTSIDE_POLYGON
+        return Refusal.NONE
+
+
+def inside_polygon(point: np.ndarray, polygon: np.ndarray) -> bool:
+    """Even-odd ray casting; points on an edge count as inside."""
+    x, y = point
+    inside = False
+    for (x0, y0), (x1, y1) in zip(polygon, np.roll(polygon, -1, axis=0)):
+        cross = (x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)
+        if cross == 0.0 and min(x0, x1) <= x <= max(x0, x1) and min(y0, y1) <= y <= max(y0, y1):
+            return True
+        if (y0 > y) != (y1 > y) and x < x0 + (y - y0) * (x1 - x0) / (y1 - y0):
+            inside = not inside
+    return inside
+
+
+@dc.dataclass
+class EmergencyParams:
+    threshold: float = bounded(2.0, 0.1, 100.0, "m")          # control error -> ELAND
+    failsafe_threshold: float = bounded(5.0, 0.1, 1000.0, "m")  # control error -> FAILSAFE
+    descent_speed: float = bounded(0.5, 0.05, 5.0, "m/s")
+    touchdown_mass_fraction: float = bounded(0.5, 0.05, 0.95)   # of the vehicle's mass, M(34)
+    touchdown_time: float = bounded(0.5, 0.0, 30.0, "s")
+
+
+_STATE = VectorLayout("control_manager_state", [
+    ("active", 1), ("mode", 1), ("request_id", 1), ("next_scheduled", 1), ("refusal", 1),
+    ("held", 1), ("hold_p", 3), ("hold_heading", 1), ("eland_start", 1), ("eland_p", 3),
+    ("eland_heading", 1), ("quiet_time", 1), ("issued_p", 3), ("issued_heading", 1),
+    ("frame_counter", 1), ("active_since", 1), ("failsafe_cause", 1), ("switches", 1),
+    ("control_error", 1), ("estimate_seen", 1)])
+
+
+@dc.dataclass
+class _Decision:
+    """What the manager does at this tick (a pure function of the context)."""
+    x: np.ndarray            # the manager state after the tick
+    reference: np.ndarray    # REFERENCE given to the controllers
+
+
+class ControlManager(LeafSystem):
+    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` REFERENCE (chi from the active tracker, in
+            E); `switch_request` (2) [request id, controller index] (optional: unconnected means
+            no requests); per controller i (in the order of `names`): `fc_command_i` FC_COMMAND,
+            `controller_status_i` CONTROLLER_STATUS, `disturbance_estimate_i`
+            DISTURBANCE_ESTIMATE (optional, for controllers that estimate disturbances M(35)-(37))
+    Outputs `fc_command` FC_COMMAND (the active controller's command: the vehicle's command and
+            every controller's `last_command`); `last_disturbance` DISTURBANCE_ESTIMATE (the
+            active controller's, NaN when it has none: the next one takes them over);
+            `reference` REFERENCE (what the controllers track: the goal, the safety hold or the
+            emergency descent); `active_i` (1) per controller; `manager_status` MANAGER_STATUS
+    Updated every `period` (100 Hz by default), together with the controllers.
+    """
+
+    def __init__(self, names: list[str], initial: str, failsafe: str, emergency: str,
+                 safety_area: SafetyArea, emergency_params: EmergencyParams,
+                 vehicle: VehicleModel, period: float = 0.01,
+                 schedule: list[tuple[float, str]] | None = None):
+        super().__init__()
+        self.names = list(names)
+        for role, name in (("initial", initial), ("failsafe", failsafe),
+                           ("emergency", emergency)):
+            if name not in self.names:
+                raise ValueError(f"{role} controller {name!r} is not in the list {self.names}")
+        self._initial, self._failsafe = self.index(initial), self.index(failsafe)
+        self._emergency = self.index(emergency)
+        safety_area.validate()
+        self._area, self._e, self._vehicle, self._period = (safety_area, emergency_params,
+                                                            vehicle, period)
+        schedule = sorted(schedule or [], key=lambda item: item[0])
+        self._schedule = [(float(t), self.index(name)) for t, name in schedule]
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._goal = self.DeclareVectorInputPort("goal", REFERENCE.size)
+        self._request = self.DeclareVectorInputPort("switch_request", 2)
+        self._commands = [self.DeclareVectorInputPort(f"fc_command_{i}", FC_COMMAND.size)
+                          for i in range(len(names))]
+        self._statuses = [self.DeclareVectorInputPort(f"controller_status_{i}",
+                                                      CONTROLLER_STATUS.size)
+                          for i in range(len(names))]
+        self._disturbances = [self.DeclareVectorInputPort(f"disturbance_estimate_{i}",
+                                                          DISTURBANCE_ESTIMATE.size)
+                              for i in range(len(names))]
+        x0 = _STATE.pack(active=self._initial, mode=ManagerMode.NORMAL, request_id=0,
+                         next_scheduled=0, refusal=Refusal.NONE, held=0, hold_p=np.zeros(3),
+                         hold_heading=0, eland_start=0, eland_p=np.zeros(3), eland_heading=0,
+                         quiet_time=0, issued_p=np.zeros(3), issued_heading=0,
+                         frame_counter=np.nan, active_since=0.0, failsafe_cause=0, switches=0,
+                         control_error=0, estimate_seen=0)
+        self._state = self.DeclareDiscreteState(x0)
+        self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
+                                     {self.all_input_ports_ticket(), self.all_state_ticket()})
+        self.DeclareVectorOutputPort("last_disturbance", DISTURBANCE_ESTIMATE.size,
+                                     self._calc_disturbance,
+                                     {self.all_input_ports_ticket(), self.all_state_ticket()})
+        self.DeclareVectorOutputPort("reference", REFERENCE.size, self._calc_reference,
+                                     everything)
+        for i in range(len(names)):
+            self.DeclareVectorOutputPort(
+                f"active_{i}", 1, lambda context, output, i=i: output.SetFromVector(
+                    [float(self._active_after(context) == i)]), everything)
+        self.DeclareVectorOutputPort("manager_status", MANAGER_STATUS.size, self._calc_status,
+                                     {self.all_state_ticket()})
+
+    def index(self, name: str) -> int:
+        if name not in self.names:
+            raise ValueError(f"unknown controller {name!r}: expected one of {self.names}")
+        return self.names.index(name)
+
+    # --- outputs ------------------------------------------------------------------------------
+
+    def _calc_command(self, context, output):
+        x = context.get_discrete_state(self._state).get_value()
+        if x[_STATE.slice("mode")][0] == ManagerMode.LANDED:
+            eta = x[_STATE.slice("eland_heading")][0]
+            return output.SetFromVector(level_command(context.get_time(), eta, 0.0, 0.0))
+        command = self._commands[int(x[_STATE.slice("active")][0])].Eval(context)
+        if not command_is_usable(command):   # never forward a NaN; the failsafe takes over next
+            command = context.get_discrete_state(self._last_command).get_value()
+        output.SetFromVector(command)
+
+    def _calc_disturbance(self, context, output):
+        port = self._disturbances[int(context.get_discrete_state(self._state).get_value()[
+            _STATE.slice("active")][0])]
+        output.SetFromVector(port.Eval(context) if port.HasValue(context)
+                             else np.full(DISTURBANCE_ESTIMATE.size, np.nan))
+
+    def _calc_reference(self, context, output):
+        output.SetFromVector(self._decide(context).reference)
+
+    def _calc_status(self, context, output):
+        x = context.get_discrete_state(self._state).get_value()
+        S = _STATE
+        output.SetFromVector(MANAGER_STATUS.pack(
+            active=S.get(x, "active"), mode=S.get(x, "mode"), refusal=S.get(x, "refusal"),
+            held=S.get(x, "held"), control_error=S.get(x, "control_error"),
+            failsafe_cause=S.get(x, "failsafe_cause"), switches=S.get(x, "switches")))
+
+    def _active_after(self, context) -> int:
+        return int(self._decide(context).x[_STATE.slice("active")][0])
+
+    def _update(self, context, discrete_state):
+        decision = self._decide(context)
+        discrete_state.set_value(self._state, decision.x)
+        command = self._commands[int(context.get_discrete_state(self._state).get_value()[
+            _STATE.slice("active")][0])].Eval(context)
+        if command_is_usable(command):
+            discrete_state.set_value(self._last_command, command)
+
+    # --- the decision -------------------------------------------------------------------------
+
+    def _decide(self, context) -> _Decision:
+        S = _STATE
+        now = context.get_time()
+        x = context.get_discrete_state(self._state).get_value().copy()
+        estimate = self._estimate.Eval(context)
+        estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 \
+            and bool(np.all(np.isfinite(estimate)))
+        if estimate_ok:
+            self._follow_frame(x, estimate)
+        mode = ManagerMode(int(S.get(x, "mode")))
+        self._switch_on_request(context, x, now, mode == ManagerMode.NORMAL)
+        watching = mode in (ManagerMode.NORMAL, ManagerMode.ELAND) and \
+            S.get(x, "estimate_seen") > 0.5
+        cause = self._failsafe_cause(context, x, estimate_ok, now) if watching \
+            else FailsafeCause.NONE
+        if estimate_ok:
+            x[S.slice("estimate_seen")] = 1.0
+        reference = self._reference(context, x, mode, estimate if estimate_ok else None, now)
+        error = float(np.linalg.norm(REFERENCE.get(reference, "p")
+                                     - STATE_ESTIMATE.get(estimate, "p_EB"))) \
+            if estimate_ok else float("nan")
+        x[S.slice("control_error")] = error if np.isfinite(error) else 0.0
+        if cause == FailsafeCause.NONE and mode == ManagerMode.NORMAL and watching and \
+                error > self._e.failsafe_threshold:
+            cause = FailsafeCause.CONTROL_ERROR
+        if cause != FailsafeCause.NONE:
+            x[S.slice("mode")] = ManagerMode.FAILSAFE
+            x[S.slice("failsafe_cause")] = cause
+            self._set_active(x, self._failsafe, now)
+        elif mode == ManagerMode.NORMAL and watching and error > self._e.threshold:
+            x[S.slice("mode")] = ManagerMode.ELAND
+            x[S.slice("eland_start")] = now
+            x[S.slice("eland_p")] = STATE_ESTIMATE.get(estimate, "p_EB")
+            x[S.slice("eland_heading")] = STATE_ESTIMATE.get(estimate, "heading")
+            x[S.slice("quiet_time")] = 0.0
+            self._set_active(x, self._emergency, now)
+            reference = self._reference(context, x, ManagerMode.ELAND, estimate, now)
+        elif mode == ManagerMode.ELAND:
+            self._detect_touchdown(context, x)
+        x[S.slice("issued_p")] = REFERENCE.get(reference, "p")
+        x[S.slice("issued_heading")] = REFERENCE.get(reference, "heading")
+        return _Decision(x, reference)
+
+    def _set_active(self, x: np.ndarray, index: int, now: float) -> None:
+        if int(_STATE.get(x, "active")) != index:
+            x[_STATE.slice("active")] = index
+            x[_STATE.slice("active_since")] = now
+            x[_STATE.slice("switches")] += 1
+
+    def _switch_on_request(self, context, x: np.ndarray, now: float, allowed: bool) -> None:
+        S = _STATE
+        target = None
+        k = int(S.get(x, "next_scheduled"))
+        while k < len(self._schedule) and self._schedule[k][0] <= now + 1e-9:
+            target, k = self._schedule[k][1], k + 1
+        x[S.slice("next_scheduled")] = k
+        if self._request.HasValue(context):
+            request_id, index = self._request.Eval(context)
+            if np.isfinite(request_id) and request_id > 0 \
+                    and request_id != S.get(x, "request_id"):
+                x[S.slice("request_id")] = request_id
+                if np.isfinite(index) and 0 <= int(index) < len(self.names) \
+                        and int(index) == index:
+                    target = int(index)
+                else:
+                    x[S.slice("refusal")] = Refusal.UNKNOWN_CONTROLLER
+        if target is not None and not allowed:
+            x[S.slice("refusal")] = Refusal.NOT_IN_NORMAL_MODE
+        elif target is not None:
+            self._set_active(x, target, now)
+
+    def _failsafe_cause(self, context, x: np.ndarray, estimate_ok: bool,
+                        now: float) -> FailsafeCause:
+        if not estimate_ok:
+            return FailsafeCause.BAD_ESTIMATE
+        active = int(_STATE.get(x, "active"))
+        if _STATE.get(x, "active_since") < now:    # it has computed since it became active
+            status = self._statuses[active].Eval(context)
+            command = self._commands[active].Eval(context)
+            if CONTROLLER_STATUS.get(status, "valid") < 0.5 \
+                    and CONTROLLER_STATUS.get(status, "reason") != ControllerReason.INACTIVE:
+                return FailsafeCause.BAD_CONTROLLER
+            if not command_is_usable(command):
+                return FailsafeCause.BAD_CONTROLLER
+        return FailsafeCause.NONE
+
+    def _reference(self, context, x: np.ndarray, mode: ManagerMode, estimate, now: float
+                   ) -> np.ndarray:
+        S = _STATE
+        if mode in (ManagerMode.ELAND, ManagerMode.LANDED):
+            descent = self._e.descent_speed
+            p = S.get(x, "eland_p") - [0.0, 0.0, descent * (now - S.get(x, "eland_start"))]
+            return REFERENCE.pack(stamp=now, p=p, v=[0.0, 0.0, -descent], a=0.0, j=0.0,
+                                  heading=S.get(x, "eland_heading"), heading_rate=0.0)
+        if mode == ManagerMode.FAILSAFE:
+            return self._hold_reference(now, S.get(x, "issued_p"), S.get(x, "issued_heading"))
+        goal = self._goal.Eval(context)
+        refusal = self._area.check(REFERENCE.get(goal, "p")) if np.all(np.isfinite(goal)) \
+            else Refusal.NOT_FINITE
+        held = S.get(x, "held") > 0.5
+        if held and refusal == Refusal.NONE and np.linalg.norm(
+                REFERENCE.get(goal, "p") - S.get(x, "hold_p")) <= self._area.rejoin_distance:
+            held = False
+        elif not held and refusal != Refusal.NONE:
+            held = True
+            x[S.slice("hold_p")] = S.get(x, "issued_p")
+            x[S.slice("hold_heading")] = S.get(x, "issued_heading")
+            x[S.slice("refusal")] = refusal
+        x[S.slice("held")] = float(held)
+        if held:
+            return self._hold_reference(now, S.get(x, "hold_p"), S.get(x, "hold_heading"))
+        return goal
+
+    @staticmethod
+    def _hold_reference(now: float, p: np.ndarray, eta: float) -> np.ndarray:
+        return REFERENCE.pack(stamp=now, p=p, v=0.0, a=0.0, j=0.0, heading=eta, heading_rate=0.0)
+
+    def _detect_touchdown(self, context, x: np.ndarray) -> None:
+        """M(34): the apparent mass of the issued thrust on its tilt."""
+        command = context.get_discrete_state(self._last_command).get_value()
+        tilt_cos = rotation_matrix(FC_COMMAND.get(command, "q_WD"))[2, 2]
+        thrust = FC_COMMAND.get(command, "thrust")
+        apparent = float(self._vehicle.curve.apparent_mass(thrust)) * tilt_cos \
+            if thrust > 0 else 0.0
+        light = apparent < self._e.touchdown_mass_fraction * self._vehicle.mass
+        quiet = _STATE.get(x, "quiet_time") + self._period if light else 0.0
+        x[_STATE.slice("quiet_time")] = quiet
+        if quiet >= self._e.touchdown_time:
+            x[_STATE.slice("mode")] = ManagerMode.LANDED
+
+    def _follow_frame(self, x: np.ndarray, estimate: np.ndarray) -> None:
+        """Re-expresses the stored points when the estimator frame changes (M Sec. 3.5)."""
+        S = _STATE
+        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
+        previous = S.get(x, "frame_counter")
+        x[S.slice("frame_counter")] = counter
+        if not np.isfinite(previous) or counter == previous:
+            return
+        R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
+        p_OldNew = STATE_ESTIMATE.get(estimate, "p_OldNew")
+        yaw = heading(R_OldNew)
+        for p, eta in (("hold_p", "hold_heading"), ("eland_p", "eland_heading"),
+                       ("issued_p", "issued_heading")):
+            x[S.slice(p)] = R_OldNew.T @ (S.get(x, p) - p_OldNew)
+            x[S.slice(eta)] = S.get(x, eta) - yaw

@@ -1,0 +1,250 @@
+"""The control manager (M Sec. 7.2) alone, on fixed inputs: switch requests and schedules, the
+safety area's refusals, the emergency landing, the failsafe, no NaN forwarded, frame changes,
+and the YAML list of controllers."""
+import dataclasses as dc
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.primitives import ConstantVectorSource
+
+from alight.diagrams.control_manager import (ControllerEntry, build_controller,
+                                             check_control_manager_config,
+                                             load_control_manager_config, parse_switch)
+from alight.diagrams.controllers import load_controllers_config
+from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE
+from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
+                                                    EmergencyParams, FailsafeCause, ManagerMode,
+                                                    Refusal, SafetyArea, inside_polygon)
+from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
+                                                     level_command, status_vector)
+from alight.systems.params import ConfigError
+from alight.systems.thrust_curve import GRAVITY
+
+NAMES = ["se3", "mpc", "failsafe"]
+AREA = SafetyArea(polygon=[[-5, -5], [5, -5], [5, 5], [-5, 5]], min_height=0.5, max_height=4.0)
+VEHICLE = VehicleModel()
+HOVER_THRUST = float(VEHICLE.curve.thrust(VEHICLE.mass * GRAVITY))
+
+
+def estimate(p=(0.0, 0.0, 2.0), valid=1.0, frame_counter=0.0, p_OldNew=(0, 0, 0),
+             q_OldNew=(1, 0, 0, 0)):
+    return STATE_ESTIMATE.pack(stamp=0.0, p_EB=p, v_EB=0.0, a_EB=0.0, q_EB=[1, 0, 0, 0],
+                               heading=0.0, heading_rate=0.0, var_pv=0.0, var_heading=0.0,
+                               frame_id=0.0, frame_counter=frame_counter, p_OldNew=p_OldNew,
+                               q_OldNew=q_OldNew, valid=valid)
+
+
+def goal(p=(0.0, 0.0, 2.0), heading=0.0):
+    return REFERENCE.pack(stamp=0.0, p=p, v=0.0, a=0.0, j=0.0, heading=heading,
+                          heading_rate=0.0)
+
+
+class Bench:
+    """The manager as `dut` with fixed inputs; every controller issues its own thrust."""
+
+    def __init__(self, schedule=None, area=AREA):
+        self.dut = ControlManager(NAMES, "se3", "failsafe", "se3", area, EmergencyParams(),
+                                  VEHICLE, 0.01, schedule)
+        self.context = self.dut.CreateDefaultContext()
+        self.simulator = Simulator(self.dut, self.context)
+        self.set(state_estimate=estimate(), goal=goal(), switch_request=[0, 0])
+        for i in range(len(NAMES)):
+            self.command(i, HOVER_THRUST + 0.01 * i)
+            self.set(**{f"controller_status_{i}": status_vector(ControllerReason.OK)})
+
+    def set(self, **values):
+        for name, value in values.items():
+            self.dut.GetInputPort(name).FixValue(self.context, np.asarray(value, dtype=float))
+
+    def command(self, i, thrust):
+        self.set(**{f"fc_command_{i}": level_command(0.0, 0.0, thrust, 1.0)})
+
+    def run(self, seconds):
+        self.simulator.AdvanceTo(self.context.get_time() + seconds)
+
+    def status(self, field):
+        return MANAGER_STATUS.get(self.dut.GetOutputPort("manager_status").Eval(self.context),
+                                  field)
+
+    def output(self, port):
+        return self.dut.GetOutputPort(port).Eval(self.context)
+
+    def active(self):
+        return [int(self.output(f"active_{i}")[0]) for i in range(len(NAMES))]
+
+
+def test_switch_request_activates_the_controller_at_the_same_tick():
+    bench = Bench()
+    bench.run(0.05)
+    assert bench.active() == [1, 0, 0]
+    bench.set(switch_request=[1, 1])            # request id 1: controller 1 (mpc)
+    # Before the tick the new controller is already told it is active (it computes at the
+    # tick, reading the command the previous one issued as `last_command`) ...
+    assert bench.active() == [0, 1, 0]
+    assert FC_COMMAND.get(bench.output("fc_command"), "thrust") == pytest.approx(HOVER_THRUST)
+    bench.run(0.01)
+    # ... and after it the manager forwards the new controller's command.
+    assert FC_COMMAND.get(bench.output("fc_command"), "thrust") == pytest.approx(
+        HOVER_THRUST + 0.01)
+    assert bench.status("switches") == 1
+    bench.set(switch_request=[2, 7])            # no controller 7: refused, nothing changes
+    bench.run(0.02)
+    assert bench.active() == [0, 1, 0] and bench.status("refusal") == Refusal.UNKNOWN_CONTROLLER
+
+
+def test_scheduled_switches_happen_at_their_times():
+    bench = Bench(schedule=[(0.2, "mpc"), (0.5, "se3")])
+    bench.run(0.195)
+    assert bench.status("active") == 0
+    bench.run(0.01)
+    assert bench.status("active") == 1
+    bench.run(0.3)
+    assert bench.status("active") == 0 and bench.status("switches") == 2
+
+
+def test_goals_outside_the_area_are_refused_with_a_reason_and_the_vehicle_holds():
+    bench = Bench()
+    bench.set(goal=goal([4.0, 0.0, 2.0], heading=0.3), state_estimate=estimate([4.0, 0.0, 2.0]))
+    bench.run(0.05)
+    assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([4.0, 0.0, 2.0])
+    for p, reason in (([6.0, 0.0, 2.0], Refusal.OUTSIDE_POLYGON),
+                      ([4.0, 0.0, 4.5], Refusal.ABOVE_MAX_HEIGHT),
+                      ([4.0, 0.0, 0.2], Refusal.BELOW_MIN_HEIGHT),
+                      ([np.nan, 0.0, 2.0], Refusal.NOT_FINITE)):
+        bench.set(goal=goal(p))
+        bench.run(0.05)
+        reference = bench.output("reference")
+        assert bench.status("refusal") == reason and bench.status("held") == 1
+        assert REFERENCE.get(reference, "p") == pytest.approx([4.0, 0.0, 2.0])   # holds
+        assert REFERENCE.get(reference, "heading") == pytest.approx(0.3)
+        assert np.all(REFERENCE.get(reference, "v") == 0.0)
+        bench.set(goal=goal([4.2, 0.0, 2.0], heading=0.3))   # back within rejoin_distance
+        bench.run(0.02)
+        assert bench.status("held") == 0
+        assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([4.2, 0.0, 2.0])
+        bench.set(goal=goal([4.0, 0.0, 2.0], heading=0.3))
+        bench.run(0.02)
+    # A goal that comes back inside far from the hold point is not followed (no jump).
+    bench.set(goal=goal([6.0, 0.0, 2.0]))
+    bench.run(0.02)
+    bench.set(goal=goal([-4.0, 0.0, 2.0]))
+    bench.run(0.02)
+    assert bench.status("held") == 1
+
+
+def test_control_error_over_the_threshold_starts_the_emergency_landing_then_disarms():
+    bench = Bench(schedule=[(0.0, "mpc")])
+    bench.run(0.05)
+    bench.set(state_estimate=estimate([2.5, 0.0, 2.0]))     # 2.5 m from the goal: over 2 m
+    bench.run(0.01)
+    assert bench.status("mode") == ManagerMode.ELAND
+    assert bench.active() == [1, 0, 0]                # the emergency controller (se3)
+    bench.run(1.0)
+    reference = bench.output("reference")
+    # Holds the estimated position of that moment, descending at 0.5 m/s.
+    assert REFERENCE.get(reference, "p")[:2] == pytest.approx([2.5, 0.0])
+    assert REFERENCE.get(reference, "p")[2] == pytest.approx(2.0 - 0.5 * 1.0, abs=0.02)
+    assert REFERENCE.get(reference, "v") == pytest.approx([0.0, 0.0, -0.5])
+    bench.set(switch_request=[1, 1])                  # no switching during the landing
+    bench.run(0.02)
+    assert bench.status("active") == 0
+    assert bench.status("refusal") == Refusal.NOT_IN_NORMAL_MODE
+    bench.command(0, 0.2 * HOVER_THRUST)              # on the ground: little thrust left
+    bench.run(0.45)
+    assert bench.status("mode") == ManagerMode.ELAND  # not yet 0.5 s
+    bench.run(0.1)
+    assert bench.status("mode") == ManagerMode.LANDED
+    command = bench.output("fc_command")
+    assert FC_COMMAND.get(command, "arm") == 0.0 and FC_COMMAND.get(command, "thrust") == 0.0
+
+
+def test_estimate_loss_and_invalid_controller_output_switch_to_the_failsafe():
+    bench = Bench()
+    bench.run(0.05)
+    bench.set(state_estimate=estimate(valid=0.0))
+    bench.run(0.01)
+    assert bench.status("mode") == ManagerMode.FAILSAFE
+    assert bench.status("failsafe_cause") == FailsafeCause.BAD_ESTIMATE
+    assert bench.active() == [0, 0, 1]
+    bench.set(state_estimate=estimate(), switch_request=[1, 0])   # no way back
+    bench.run(0.05)
+    assert bench.active() == [0, 0, 1]
+
+    bench = Bench()
+    bench.run(0.05)
+    bench.set(controller_status_0=status_vector(ControllerReason.SOLVER_FAILED))
+    bench.run(0.01)
+    assert bench.status("failsafe_cause") == FailsafeCause.BAD_CONTROLLER
+    assert bench.active() == [0, 0, 1]
+
+
+def test_no_valid_estimate_before_the_first_one_is_not_a_failure():
+    bench = Bench()
+    bench.set(state_estimate=estimate(valid=0.0),
+              controller_status_0=status_vector(ControllerReason.BAD_ESTIMATE))
+    bench.run(0.2)
+    assert bench.status("mode") == ManagerMode.NORMAL and bench.active() == [1, 0, 0]
+
+
+def test_a_nan_command_is_never_forwarded():
+    bench = Bench()
+    bench.run(0.05)
+    bad = level_command(0.0, 0.0, HOVER_THRUST, 1.0)
+    bad[FC_COMMAND.slice("w_D")] = np.nan
+    bench.set(fc_command_0=bad)
+    command = bench.output("fc_command")
+    assert np.all(np.isfinite(command))
+    assert FC_COMMAND.get(command, "thrust") == pytest.approx(HOVER_THRUST)  # the last good one
+    bench.run(0.01)
+    assert bench.status("failsafe_cause") == FailsafeCause.BAD_CONTROLLER
+
+
+def test_the_hold_point_follows_an_estimator_frame_change():
+    bench = Bench()
+    bench.set(goal=goal([4.0, 1.0, 2.0]), state_estimate=estimate([4.0, 1.0, 2.0]))
+    bench.run(0.05)
+    bench.set(goal=goal([9.0, 1.0, 2.0]))            # refused: hold at (4, 1, 2) in frame 0
+    bench.run(0.02)
+    # New frame: rotated 90 deg about z and shifted by (1, 0, 0) from the old one.
+    q = [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]
+    bench.set(state_estimate=estimate([1.0, -3.0, 2.0], frame_counter=1, p_OldNew=[1.0, 0.0, 0.0],
+                                q_OldNew=q))
+    bench.run(0.02)
+    # p_new = R_OldNew^T (p_old - p_OldNew) = R_z(-90 deg) (3, 1, 2) = (1, -3, 2).
+    assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.0, -3.0, 2.0])
+    assert REFERENCE.get(bench.output("reference"), "heading") == pytest.approx(-np.pi / 2)
+    assert bench.status("mode") == ManagerMode.NORMAL      # no control error from the change
+
+
+def test_inside_polygon_on_a_concave_area():
+    l_shape = np.array([[0, 0], [4, 0], [4, 1], [1, 1], [1, 4], [0, 4]], dtype=float)
+    assert inside_polygon([0.5, 3.0], l_shape) and inside_polygon([3.0, 0.5], l_shape)
+    assert not inside_polygon([3.0, 3.0], l_shape)
+    assert inside_polygon([4.0, 0.5], l_shape)          # on an edge
+
+
+def not_a_controller(controllers_config):
+    return ConstantVectorSource([0.0])
+
+
+def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
+    config = load_control_manager_config()
+    assert config.names == NAMES
+    controllers_config = load_controllers_config(config.controllers_file)
+    for entry in config.controllers:
+        assert build_controller(entry, controllers_config).HasOutputPort("fc_command")
+    with pytest.raises(ConfigError, match="emergency_controller"):
+        check_control_manager_config(dc.replace(config, emergency_controller="pid"))
+    with pytest.raises(ConfigError, match="built-in"):
+        check_control_manager_config(dc.replace(config, controllers=[ControllerEntry("pid")]))
+    with pytest.raises(ConfigError, match="controller contract"):
+        build_controller(ControllerEntry("bad", f"{__name__}:not_a_controller"),
+                         controllers_config)
+    with pytest.raises(ConfigError, match="cannot load factory"):
+        build_controller(ControllerEntry("bad", "no_such_module:make"), controllers_config)
+    with pytest.raises(ConfigError, match="polygon"):
+        check_control_manager_config(dc.replace(config, safety_area=SafetyArea(polygon=[[0, 0]])))
+    assert parse_switch("12.5:mpc", NAMES) == (12.5, "mpc")
+    with pytest.raises(ValueError, match="TIME:NAME"):
+        parse_switch("soon:mpc", NAMES)
