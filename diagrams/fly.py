@@ -64,7 +64,8 @@ def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, me
                  estimate_filter=None) -> MpcLoop:
     """Simulated vehicle + odometry + linear MPC (+ arm gate) following `reference_port`.
     `odometry(builder, vehicle) -> STATE_ESTIMATE port` builds the state estimate from the vehicle
-    diagram's ports (default `mocap_odometry()`; VIO and the estimator bank plug in here);
+    diagram's ports (default `mocap_odometry()`; VIO and the estimator bank plug in here); an
+    odometry with `connect_command(builder, port)` is also given the issued command;
     `estimate_filter(builder, port) -> port` may alter the estimate (fault injection in tests)."""
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
     estimate = (odometry or mocap_odometry())(builder, vehicle)
@@ -82,6 +83,8 @@ def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, me
     builder.Connect(arm_port, gate.GetInputPort("arm"))
     builder.Connect(gate.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     builder.Connect(gate.GetOutputPort("fc_command"), mpc.GetInputPort("last_command"))
+    if hasattr(odometry, "connect_command"):  # e.g. the estimator bank's acceleration input
+        odometry.connect_command(builder, gate.GetOutputPort("fc_command"))
     return MpcLoop(vehicle, mpc, estimate, gate.GetOutputPort("fc_command"), mpc_params.period)
 
 
@@ -136,15 +139,19 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
 
 
 def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: int = 0,
-                  mpc_params: LinearMpcParams | None = None, estimate_filter=None) -> RunLog:
+                  mpc_params: LinearMpcParams | None = None, estimate_filter=None,
+                  odometry=None, log=None) -> RunLog:
     """Arms, then follows the scripted reference `fn(t) -> (p_W, v_W)` with the MPC for
-    `duration` s (experiments, tests and benchmarks of the closed loop)."""
+    `duration` s (experiments, tests and benchmarks of the closed loop; `odometry` and `log` as
+    in `fly_waypoints`)."""
     builder = DiagramBuilder()
     reference = builder.AddNamedSystem("reference", ScriptedReference(fn))
     loop = add_mpc_loop(builder, config, reference.GetOutputPort("reference"),
                         reference.GetOutputPort("arm"), mpc_params=mpc_params,
-                        estimate_filter=estimate_filter)
+                        estimate_filter=estimate_filter, odometry=odometry)
     loggers = add_mpc_logging(builder, loop, reference.GetOutputPort("reference"))
+    if log is not None:
+        log(builder, loggers)
     simulator = simulate(builder.Build(), duration, seed)
     write_run_folder(run_dir, loggers, simulator.get_context(), {
         "command": "fly_reference", "seed": seed, "duration": duration, "config": config,

@@ -1,0 +1,163 @@
+"""Builds the estimator bank (M Sec. 3.5, 7.1) into a diagram: its sources (simulated sensor
+models, or the mocap source) from the bank YAML, the bank, and the command-derived acceleration
+input; `BankOdometry` is the `odometry` hook of `fly.add_mpc_loop` / `fly_waypoints`.
+
+A source entry in the bank YAML names its kind and, for simulation, its sensor model's YAML
+(`sensor:`); `SENSOR_MODELS` maps the kind to the model. Adding a simulated source kind is one
+entry here plus its adapter in `systems/estimation/measurements.py`.
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.common import RandomDistribution
+from pydrake.systems.primitives import ConstantVectorSource, DiscreteTimeDelay, RandomSource
+
+from alight.diagrams.mocap import add_mocap
+from alight.models import model_path
+from alight.systems.estimation.bank import BankParams, EstimatorBank, check_bank
+from alight.systems.estimation.command_acceleration import CommandAcceleration
+from alight.systems.estimation.frames import FrameAnchor
+from alight.systems.params import ConfigError, load_params
+from alight.systems.sensors.mocap import MocapParams
+from alight.systems.sensors.optic_flow import OpticFlow, OpticFlowParams
+from alight.systems.sensors.position_fix import PositionFix, PositionFixParams
+from alight.systems.sensors.rangefinder import Rangefinder, RangefinderParams
+from alight.systems.thrust_curve import ThrustCurve
+
+
+def load_bank_params(filename: str = "estimator_bank.yaml", data: str | None = None) -> BankParams:
+    """The bank YAML (a path or a file in models/), checked: a ConfigError names file and key."""
+    path = model_path(filename) if data is None else None
+    params = load_params(BankParams, path, data=data)
+    check_bank(params, str(path) if path else "<yaml string>")
+    return params
+
+
+def add_sampled_sensor(builder, name: str, sensor, latency: float, ground_truth_port):
+    """A `SampledSensor` with its noise source and latency; returns the delayed output port.
+    A consumer sampling it sees messages `latency` (rounded to periods, at least one) old."""
+    builder.AddNamedSystem(name, sensor)
+    noise = builder.AddNamedSystem(f"{name}_noise", RandomSource(
+        RandomDistribution.kGaussian, sensor.noise_size, sensor.period))
+    builder.Connect(noise.get_output_port(), sensor.GetInputPort("noise"))
+    builder.Connect(ground_truth_port, sensor.GetInputPort("ground_truth"))
+    steps = round(latency / sensor.period) - 1  # the sensor's own state holds one period
+    if steps <= 0:
+        return sensor.GetOutputPort("measurement")
+    delay = builder.AddNamedSystem(f"{name}_latency", DiscreteTimeDelay(
+        sensor.period, steps, sensor.layout.size))
+    builder.Connect(sensor.GetOutputPort("measurement"), delay.get_input_port())
+    return delay.get_output_port()
+
+
+def _sampled(schema, system):
+    def build(builder, name, filename, ground_truth_port):
+        params = filename if isinstance(filename, schema) else \
+            load_params(schema, model_path(filename)) if filename else schema()
+        return add_sampled_sensor(builder, name, system(params), params.latency,
+                                  ground_truth_port)
+    return build
+
+
+def _mocap(builder, name, filename, ground_truth_port):
+    params = filename if isinstance(filename, MocapParams) else \
+        load_params(MocapParams, model_path(filename)) if filename else MocapParams()
+    return add_mocap(builder, ground_truth_port, params, name=name)
+
+
+SENSOR_MODELS = {"position_fix": _sampled(PositionFixParams, PositionFix),
+                 "velocity_fix": _sampled(OpticFlowParams, OpticFlow),
+                 "range": _sampled(RangefinderParams, Rangefinder),
+                 "odometry": _mocap}
+
+
+@dc.dataclass
+class Bank:
+    """Handles to the parts `add_estimator_bank` built."""
+    system: EstimatorBank
+    state_estimate: object   # the bank's output port (active frame, switches visible)
+    anchored: object         # the same estimate in the anchor frame (FrameAnchor)
+    status: object
+    sources: dict
+
+
+def add_estimator_bank(builder, vehicle, params: BankParams, request: str | None = None,
+                       sensors: dict | None = None, name: str = "estimator_bank") -> Bank:
+    """The bank fed by simulated sources on `vehicle`'s ground truth and its `fc_attitude`.
+    `request`: a filter name the arbiter is asked for (held for the whole run); `sensors`:
+    {source name: sensor YAML or params} overriding the bank YAML's `sensor:` entries."""
+    bank = builder.AddNamedSystem(name, EstimatorBank(params))
+    builder.Connect(vehicle.GetOutputPort("fc_attitude"), bank.GetInputPort("fc_attitude"))
+    truth = vehicle.GetOutputPort("ground_truth")
+    ports = {}
+    for source in params.sources:
+        filename = (sensors or {}).get(source.name, source.sensor)
+        ports[source.name] = SENSOR_MODELS[source.kind](builder, source.name, filename, truth)
+        builder.Connect(ports[source.name], bank.GetInputPort(source.name))
+    if request is not None:
+        if request not in bank.filter_names:
+            raise ConfigError(f"estimator {request!r} is not a filter of the bank "
+                              f"{bank.filter_names}")
+        index = builder.AddNamedSystem(f"{name}_request", ConstantVectorSource(
+            [float(bank.filter_names.index(request))]))
+        builder.Connect(index.get_output_port(), bank.GetInputPort("request"))
+    anchor = builder.AddNamedSystem(f"{name}_anchor", FrameAnchor(params.period))
+    builder.Connect(bank.GetOutputPort("state_estimate"), anchor.GetInputPort("state_estimate"))
+    return Bank(bank, bank.GetOutputPort("state_estimate"),
+                anchor.GetOutputPort("state_estimate"), bank.GetOutputPort("bank_status"), ports)
+
+
+class BankOdometry:
+    """The `odometry` hook of `add_mpc_loop`: adds the bank and returns its estimate in the anchor
+    frame (the linear MPC and the waypoint mission do not re-express on frame switches);
+    `connect_command` feeds the bank the command-derived acceleration (M(53) stand-in);
+    `log(builder, loggers)` records `bank_estimate` (active frame) and `bank_status`."""
+
+    def __init__(self, params: BankParams | None = None, request: str | None = None,
+                 sensors: dict | None = None, mass: float | None = None,
+                 curve: ThrustCurve | None = None):
+        self.params = params or load_bank_params()
+        self.request, self.sensors = request, sensors
+        self._mass, self._curve = mass, curve
+        self.bank: Bank | None = None
+
+    def __call__(self, builder, vehicle):
+        self.bank = add_estimator_bank(builder, vehicle, self.params, self.request, self.sensors)
+        self._vehicle = vehicle
+        return self.bank.anchored
+
+    def connect_command(self, builder, command_port) -> None:
+        if self._mass is None:
+            from alight.diagrams.fly import load_linear_model
+            model = load_linear_model()
+            self._mass, self._curve = model.mass, ThrustCurve(model.thrust_a, model.thrust_b)
+        acceleration = builder.AddNamedSystem("command_acceleration",
+                                              CommandAcceleration(self._mass, self._curve))
+        builder.Connect(command_port, acceleration.GetInputPort("fc_command"))
+        builder.Connect(self._vehicle.GetOutputPort("fc_status"),
+                        acceleration.GetInputPort("fc_status"))
+        builder.Connect(acceleration.GetOutputPort("desired_acceleration"),
+                        self.bank.system.GetInputPort("desired_acceleration"))
+
+    def log(self, builder, loggers) -> None:
+        from alight.systems.boundary import STATE_ESTIMATE
+        loggers.add(builder, "bank_estimate", self.bank.state_estimate, STATE_ESTIMATE)
+        loggers.add(builder, "bank_status", self.bank.status, self.bank.system.status)
+
+
+def active_filter_names(run, params: BankParams) -> np.ndarray:
+    """The active filter's name at every `bank_status` row of a run folder."""
+    names = np.array([f.name for f in params.filters])
+    return names[run["bank_status"]["active"].to_numpy().astype(int)]
+
+
+def fly_bank(config, params: BankParams, duration: float, run_dir, seed: int = 0,
+             hold=(0.0, 0.0, 3.0), request: str | None = None, sensors: dict | None = None):
+    """Takes off to `hold` (in the anchor frame) and holds it for `duration` s with the linear
+    MPC on the bank's estimate (tests, bench, notebook). Returns the RunLog, with the streams
+    `bank_estimate` and `bank_status` besides the MPC loop's."""
+    from alight.diagrams.fly import fly_reference
+    odometry = BankOdometry(params, request=request, sensors=sensors)
+    p_hold = np.asarray(hold, float)
+    return fly_reference(config, lambda t: (p_hold, np.zeros(3)), duration, run_dir, seed,
+                         odometry=odometry, log=odometry.log)

@@ -1,0 +1,350 @@
+"""The bank of filters with its arbiter, M Sec. 3.5 and 7.1: several linear Kalman filters
+(M(7)-(11), `lkf.py`), each fusing its own subset of the sources and keeping its own frame, run
+together at `period`; the arbiter (`arbiter.py`) picks the hypothesis that becomes the one
+`state_estimate` every controller reads.
+
+On a switch from filter Old to filter New the output changes `frame_id` to New's and increments
+`frame_counter`, and carries X_OldNew (p_OldNew, q_OldNew), the pose of the new frame in the old
+one computed from the two hypotheses at that instant (same body position and heading), so that
+consumers re-express their states (p_New = R_OldNew^T (p_Old - p_OldNew)) and the vehicle does
+not move. The orientation is M(12)-(14) (the flight controller's, turned to the filter's heading).
+
+Bad input never reaches a hypothesis: a message with a non-finite value, or with a stamp older
+than the last one of its source (out of order), is rejected and counted in `bank_status`.
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RotationMatrix
+from pydrake.systems.framework import LeafSystem
+from scipy.stats import chi2
+
+from alight.systems.boundary import FC_ATTITUDE, STATE_ESTIMATE, VectorLayout
+from alight.systems.estimation.arbiter import ArbiterParams, Health, choose
+from alight.systems.estimation.heading import rotation_z, with_heading
+from alight.systems.estimation.lkf import POSITION, VELOCITY, DecoupledKf, FilterModelParams
+from alight.systems.estimation.measurements import (ADAPTERS, AXES, QUANTITIES, Measurement,
+                                                    fc_measurements, stamp_and_valid)
+from alight.systems.params import ConfigError, bounded, choice
+from alight.systems.rotations import heading, rotation_matrix
+
+
+@dc.dataclass
+class SourceParams:
+    name: str = ""
+    kind: str = choice("position_fix", "velocity_fix", "range", "odometry")
+    timeout: float = bounded(0.5, 0.005, 600.0, "s")  # no new message this long: stopped
+    sensor: str = ""  # simulation: the sensor model's YAML in models/ (diagrams/estimation.py)
+
+
+@dc.dataclass
+class FilterParams:
+    name: str = ""
+    frame_id: int = bounded(0, 0, 1_000_000)
+    fuse: list[str] = dc.field(default_factory=list)   # "source.quantity[.axes]"
+    gate: bool = True                                  # innovation gating (chi-square)
+    model: FilterModelParams = dc.field(default_factory=FilterModelParams)
+
+
+@dc.dataclass
+class FcSourceParams:
+    """The flight controller's attitude as the built-in source `fc`."""
+    heading_std: float = bounded(3.0, 0.01, 180.0, "deg")        # magnetometer-aided heading
+    heading_rate_std: float = bounded(0.02, 1e-4, 10.0, "rad/s")  # gyro through M(15)
+
+
+@dc.dataclass
+class BankParams:
+    period: float = bounded(0.01, 0.001, 1.0, "s")  # 100 Hz (DESIGN.md rates)
+    fc: FcSourceParams = dc.field(default_factory=FcSourceParams)
+    sources: list[SourceParams] = dc.field(default_factory=list)
+    filters: list[FilterParams] = dc.field(default_factory=list)
+    arbiter: ArbiterParams = dc.field(default_factory=ArbiterParams)
+
+
+@dc.dataclass(frozen=True)
+class Fusion:
+    """One parsed `fuse` entry."""
+    source: str
+    quantity: str
+    axes: tuple[int, ...]
+
+
+def parse_fusion(text: str, kinds: dict[str, str], where: str) -> Fusion:
+    """'gnss.position.xy' -> Fusion; a ConfigError naming the key for anything unknown."""
+    parts = text.split(".")
+    if len(parts) not in (2, 3):
+        raise ConfigError(f"{where}: {text!r} is not 'source.quantity[.axes]'")
+    source, quantity = parts[0], parts[1]
+    if source not in kinds:
+        raise ConfigError(f"{where}: source {source!r} is not one of {sorted(kinds)}")
+    allowed = QUANTITIES[kinds[source]]
+    if quantity not in allowed:
+        raise ConfigError(f"{where}: source {source!r} gives {list(allowed)}, not {quantity!r}")
+    default = {"position": "xyz", "velocity": "xyz", "velocity_heading": "xy", "height": "z"}
+    letters = parts[2] if len(parts) == 3 else default.get(quantity, "")
+    if quantity in ("heading", "heading_rate") and letters:
+        raise ConfigError(f"{where}: {quantity} takes no axes, got {text!r}")
+    if any(c not in default.get(quantity, "") for c in letters) or len(set(letters)) != \
+            len(letters):
+        raise ConfigError(f"{where}: axes {letters!r} of {text!r} must be a subset of "
+                          f"{default.get(quantity, '')!r}")
+    return Fusion(source, quantity, tuple(AXES[c] for c in letters))
+
+
+def check_bank(params: BankParams, where: str = "<bank>") -> list[list[Fusion]]:
+    """Names unique and known; returns each filter's parsed fusion list."""
+    kinds = {"fc": "fc"}
+    for i, s in enumerate(params.sources):
+        if not s.name.isidentifier() or s.name in kinds:
+            raise ConfigError(f"{where}: key 'sources[{i}].name' = {s.name!r} must be a unique "
+                              f"identifier other than 'fc'")
+        kinds[s.name] = s.kind
+    if not params.filters:
+        raise ConfigError(f"{where}: key 'filters' must declare at least one filter")
+    names = [f.name for f in params.filters]
+    if len(set(names)) != len(names) or not all(n.isidentifier() for n in names):
+        raise ConfigError(f"{where}: key 'filters[].name' must be unique identifiers, got {names}")
+    if params.arbiter.initial and params.arbiter.initial not in names:
+        raise ConfigError(f"{where}: key 'arbiter.initial' = {params.arbiter.initial!r} is not "
+                          f"one of {names}")
+    fusions = []
+    for i, f in enumerate(params.filters):
+        key = f"{where}: key 'filters[{i}].fuse'"
+        parsed = [parse_fusion(text, kinds, key) for text in f.fuse]
+        if not any(p.quantity in ("position", "velocity", "velocity_heading", "height")
+                   for p in parsed):
+            raise ConfigError(f"{key} fuses no translational quantity")
+        fusions.append(parsed)
+    return fusions
+
+
+def status_layout(params: BankParams) -> VectorLayout:
+    """`bank_status`: active filter index, switches, rejected messages (non-finite, out of order)
+    and per filter: reliable (0/1), covariance trace, gate rejections, position p [m], velocity
+    v [m/s] and heading [rad] in its own frame."""
+    fields = [("active", 1), ("switches", 1), ("rejected_nan", 1), ("rejected_order", 1)]
+    for f in params.filters:
+        fields += [(f"{f.name}_reliable", 1), (f"{f.name}_trace", 1),
+                   (f"{f.name}_gated", 1), (f"{f.name}_p", 3), (f"{f.name}_v", 3),
+                   (f"{f.name}_heading", 1)]
+    return VectorLayout("bank_status", fields)
+
+
+@dc.dataclass
+class BankState:
+    filters: list[DecoupledKf]
+    health: list[Health]
+    seen: dict                      # source -> (last stamp, time of arrival)
+    gated: np.ndarray               # per filter: gate rejections
+    active: int = 0
+    active_since: float = 0.0
+    frame_counter: int = 0
+    p_OldNew: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
+    q_OldNew: np.ndarray = dc.field(default_factory=lambda: np.array([1.0, 0, 0, 0]))
+    switches: int = 0
+    rejected_nan: int = 0
+    rejected_order: int = 0
+    R_o: np.ndarray = dc.field(default_factory=lambda: np.eye(3))
+    eta_o: float = 0.0
+    stamp: float = np.nan
+    heading_set: bool = False
+
+    def copy(self) -> "BankState":
+        return dc.replace(self, filters=[f.copy() for f in self.filters],
+                          health=[dc.replace(h, rejecting_since=h.rejecting_since.copy())
+                                  for h in self.health], seen=dict(self.seen),
+                          gated=self.gated.copy())
+
+
+class EstimatorBank(LeafSystem):
+    """Input  `fc_attitude`          FC_ATTITUDE (orientation R_o, body rates): source `fc`
+    Input  `<source name>`        one per declared source, of its kind's layout (measurements.py)
+    Input  `desired_acceleration` (3) unbiased desired acceleration M(53) in the flight
+                                   controller's attitude frame [m/s^2] (unconnected: zero)
+    Input  `request`              (1) index of a requested filter, -1 for none (unconnected: none)
+    Output `state_estimate`       STATE_ESTIMATE of the active filter, in its frame E
+    Output `bank_status`          `status_layout(params)`
+    """
+
+    def __init__(self, params: BankParams):
+        super().__init__()
+        self.params = params
+        self._fusions = check_bank(params)
+        self._gate = {k: chi2.ppf(params.arbiter.gate_probability, k) for k in (1, 2, 3)}
+        self.status = status_layout(params)
+        self.filter_names = [f.name for f in params.filters]
+        self._fc = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
+        self._sources = {s.name: (s, self.DeclareVectorInputPort(
+            s.name, ADAPTERS[s.kind].layout.size)) for s in params.sources}
+        self._acceleration = self.DeclareVectorInputPort("desired_acceleration", 3)
+        self._request = self.DeclareVectorInputPort("request", 1)
+        initial = self.filter_names.index(params.arbiter.initial) if params.arbiter.initial \
+            else 0
+        state = BankState(
+            filters=[DecoupledKf(f.model, params.period) for f in params.filters],
+            health=[Health(rejecting_since=np.full(len(f), np.nan)) for f in self._fusions],
+            seen={},
+            gated=np.zeros(len(params.filters)), active=initial)
+        self._state = self.DeclareAbstractState(AbstractValue.Make(state))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
+        ticket = {self.abstract_state_ticket(self._state)}
+        self.DeclareVectorOutputPort("state_estimate", STATE_ESTIMATE.size, self._calc_estimate,
+                                     prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("bank_status", self.status.size, self._calc_status,
+                                     prerequisites_of_calc=ticket)
+
+    # --- update -------------------------------------------------------------------------------
+    def _update(self, context, state):
+        s = context.get_abstract_state(self._state).get_value().copy()
+        now = context.get_time()
+        new = self._read_sources(context, s, now)
+        self._predict(context, s)
+        for i, f in enumerate(self.params.filters):
+            self._fuse(i, s, new, now)
+        self._check_health(s, now)
+        self._arbitrate(context, s, now)
+        s.stamp = now
+        state.get_mutable_abstract_state(self._state).set_value(s)
+
+    def _read_sources(self, context, s: BankState, now: float) -> dict[str, list[Measurement]]:
+        """New, finite, in-order messages of every source, as measurements (with their age)."""
+        new = {}
+        attitude = self._fc.Eval(context)
+        if self._accept(s, "fc", attitude, FC_ATTITUDE, now):
+            s.R_o = rotation_matrix(FC_ATTITUDE.get(attitude, "q_WB"))
+            s.eta_o = heading(s.R_o)
+            fc = self.params.fc
+            new["fc"] = (now - FC_ATTITUDE.get(attitude, "stamp"), fc_measurements(
+                attitude, np.radians(fc.heading_std) ** 2, fc.heading_rate_std ** 2))
+        for name, (source, port) in self._sources.items():
+            value = port.Eval(context)
+            adapter = ADAPTERS[source.kind]
+            if self._accept(s, name, value, adapter.layout, now):
+                new[name] = (now - adapter.layout.get(value, "stamp"),
+                             adapter.measurements(value, s.R_o))
+        return new
+
+    def _accept(self, s: BankState, name: str, value, layout, now: float) -> bool:
+        stamp, valid = stamp_and_valid(layout, value)
+        last = s.seen.get(name, (-np.inf, -np.inf))[0]
+        if not valid or stamp == last:
+            return False
+        if not np.all(np.isfinite(value)):
+            s.rejected_nan += 1
+            return False
+        if stamp < last or stamp > now + 1e-9:
+            s.rejected_order += 1
+            return False
+        s.seen[name] = (stamp, now)
+        return True
+
+    def _predict(self, context, s: BankState) -> None:
+        u_o = self._acceleration.Eval(context) if self._acceleration.HasValue(context) \
+            else np.zeros(3)
+        if not np.all(np.isfinite(u_o)):
+            s.rejected_nan += 1
+            u_o = np.zeros(3)
+        for kf in s.filters:
+            kf.predict(rotation_z(kf.eta[0] - s.eta_o) @ u_o)
+
+    def _fuse(self, i: int, s: BankState, new: dict, now: float) -> None:
+        kf, health = s.filters[i], s.health[i]
+        if "fc" in new and not s.heading_set:
+            kf.eta[0] = s.eta_o  # every frame starts aligned with the flight controller's
+        for j, fusion in enumerate(self._fusions[i]):
+            if fusion.source not in new:
+                continue
+            age, measurements = new[fusion.source]
+            since = health.rejecting_since[j]
+            reset = np.isfinite(since) and now - since >= self.params.arbiter.reset_after
+            gated = self.params.filters[i].gate and not reset
+            for m in measurements:
+                if m.quantity != fusion.quantity:
+                    continue
+                if self._correct(kf, fusion, m, age, gated, reset):
+                    health.rejecting_since[j] = np.nan
+                else:
+                    s.gated[i] += 1
+                    if not np.isfinite(since):
+                        health.rejecting_since[j] = now
+        health.initialized = bool(kf.observed.all())
+
+    def _correct(self, kf: DecoupledKf, fusion: Fusion, m: Measurement, age: float,
+                 gated: bool, reset: bool) -> bool:
+        """Fuses one measurement; False if the innovation gate rejected it. A reset (the gate
+        failed for `reset_after`) re-initializes a position from the measurement."""
+        q = fusion.quantity
+        if q in ("heading", "heading_rate"):
+            order = 0 if q == "heading" else 1
+            return kf.correct_heading(float(m.z[0]), float(m.variance[0]), order=order,
+                                      gate=self._gate[1] if gated and order == 0 else None)[0]
+        axes = list(fusion.axes)
+        z = m.z[[m.axes.index(a) for a in axes]]
+        var = m.variance[[m.axes.index(a) for a in axes]]
+        order = VELOCITY if q in ("velocity", "velocity_heading") else POSITION
+        if q == "velocity_heading":
+            z = (rotation_z(kf.eta[0]) @ np.append(m.z, 0.0))[axes]
+            var = np.full(len(axes), var.max())
+        if order == POSITION and (reset or not kf.positioned[axes].all()):
+            kf.set_position(axes, z, var)  # initialization, or re-initialization
+            return True
+        return kf.correct(axes, order, z, var, age,
+                          gate=self._gate[len(axes)] if gated else None)[0]
+
+    def _check_health(self, s: BankState, now: float) -> None:
+        timeouts = {src.name: src.timeout for src in self.params.sources}
+        for i, health in enumerate(s.health):
+            sources = {f.source for f in self._fusions[i] if f.source != "fc"}
+            health.stopped = any(now - s.seen.get(name, (np.inf, -np.inf))[0] > timeouts[name]
+                                 for name in sources)
+            health.update(now, self.params.arbiter)
+        s.heading_set = s.heading_set or "fc" in s.seen
+
+    def _arbitrate(self, context, s: BankState, now: float) -> None:
+        request = int(self._request.Eval(context)[0]) if self._request.HasValue(context) else -1
+        traces = [kf.covariance_trace() for kf in s.filters]
+        chosen = choose(s.active, s.active_since, now, s.health, traces, request,
+                        self.params.arbiter)
+        if chosen == s.active:
+            return
+        old, new = s.filters[s.active], s.filters[chosen]
+        R_OldNew = rotation_z(old.eta[0] - new.eta[0])
+        s.p_OldNew = old.x[:, 0] - R_OldNew @ new.x[:, 0]
+        s.q_OldNew = RotationMatrix(R_OldNew).ToQuaternion().wxyz()
+        s.active, s.active_since = chosen, now
+        s.frame_counter += 1
+        s.switches += 1
+
+    # --- outputs ------------------------------------------------------------------------------
+    def _calc_estimate(self, context, output):
+        s = context.get_abstract_state(self._state).get_value()
+        kf = s.filters[s.active]
+        q_EB = RotationMatrix.ProjectToRotationMatrix(with_heading(s.R_o, kf.eta[0])) \
+            .ToQuaternion().wxyz()
+        values = np.concatenate([kf.x.ravel(), kf.eta, kf.variances(), q_EB])
+        valid = s.health[s.active].initialized and bool(np.all(np.isfinite(values)))
+        if not valid:  # never hand a non-finite value on; say the estimate is not usable
+            kf = DecoupledKf(kf.params, kf.dt)
+            q_EB = np.array([1.0, 0.0, 0.0, 0.0])
+        output.SetFromVector(STATE_ESTIMATE.pack(
+            stamp=s.stamp if np.isfinite(s.stamp) else context.get_time(),
+            p_EB=kf.x[:, 0], v_EB=kf.x[:, 1], a_EB=kf.x[:, 2], q_EB=q_EB,
+            heading=kf.eta[0], heading_rate=kf.eta[1], var_pv=kf.variances(),
+            var_heading=kf.P_eta[0, 0], frame_id=float(self.params.filters[s.active].frame_id),
+            frame_counter=float(s.frame_counter), p_OldNew=s.p_OldNew, q_OldNew=s.q_OldNew,
+            valid=float(valid)))
+
+    def _calc_status(self, context, output):
+        s = context.get_abstract_state(self._state).get_value()
+        values = {"active": s.active, "switches": s.switches, "rejected_nan": s.rejected_nan,
+                  "rejected_order": s.rejected_order}
+        for i, name in enumerate(self.filter_names):
+            values[f"{name}_reliable"] = float(s.health[i].reliable)
+            values[f"{name}_trace"] = s.filters[i].covariance_trace()
+            values[f"{name}_gated"] = s.gated[i]
+            values[f"{name}_p"] = s.filters[i].x[:, 0]
+            values[f"{name}_v"] = s.filters[i].x[:, 1]
+            values[f"{name}_heading"] = s.filters[i].eta[0]
+        output.SetFromVector(self.status.pack(**values))

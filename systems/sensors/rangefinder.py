@@ -1,0 +1,44 @@
+"""A downward rangefinder (M Sec. 3.1.2), simulation side: the distance along -b3 from the body
+to the ground plane z = 0, range = z / cos(tilt), plus white noise; no measurement beyond
+`max_range`, above `max_tilt` or in the `outages` windows.
+"""
+import dataclasses as dc
+
+import numpy as np
+
+from alight.systems.boundary import GROUND_TRUTH
+from alight.systems.estimation.measurements import RANGE
+from alight.systems.params import bounded
+from alight.systems.rotations import rotation_matrix
+from alight.systems.sensors.sampled import SampledSensor, check_windows, in_windows
+
+
+@dc.dataclass
+class RangefinderParams:
+    period: float = bounded(0.02, 0.001, 10.0, "s")            # 50 Hz (Garmin LIDAR-Lite class)
+    latency: float = bounded(0.02, 0.0, 5.0, "s")
+    noise_std: float = bounded(0.02, 0.0, 10.0, "m")
+    max_range: float = bounded(40.0, 0.1, 1000.0, "m")
+    max_tilt: float = bounded(45.0, 1.0, 89.0, "deg")
+    outages: list[list[float]] = dc.field(default_factory=list)
+
+    def __post_init__(self):
+        check_windows(self.outages, "outages")
+
+
+class Rangefinder(SampledSensor):
+    """Output `measurement` RANGE [m]."""
+
+    def __init__(self, params: RangefinderParams):
+        super().__init__(RANGE, params.period, noise_size=1)
+        self._p = params
+
+    def measure(self, t, truth, noise, memory):
+        cos_tilt = rotation_matrix(GROUND_TRUTH.get(truth, "q_WB"))[2, 2]
+        height = GROUND_TRUTH.get(truth, "p_WB")[2]
+        valid = cos_tilt > np.cos(np.radians(self._p.max_tilt)) and not in_windows(
+            t, self._p.outages)
+        distance = max(height, 0.0) / max(cos_tilt, 1e-3) + self._p.noise_std * noise[0]
+        valid = valid and distance <= self._p.max_range
+        return RANGE.pack(stamp=t, range=distance, var=max(self._p.noise_std, 1e-3) ** 2,
+                          valid=float(valid))
