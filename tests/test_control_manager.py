@@ -2,13 +2,15 @@
 safety area's refusals, the emergency landing, the failsafe, no NaN forwarded, frame changes,
 and the YAML list of controllers."""
 import dataclasses as dc
+from pathlib import Path
 
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.primitives import ConstantVectorSource
 
-from alight.diagrams.control_manager import (ControllerEntry, build_controller,
+from alight.diagrams.control_manager import (ControlManagerConfig, ControllerEntry,
+                                             build_controller,
                                              check_control_manager_config,
                                              load_control_manager_config, parse_switch)
 from alight.diagrams.controllers import load_controllers_config
@@ -18,7 +20,7 @@ from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManag
                                                     Refusal, SafetyArea, inside_polygon)
 from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
                                                      level_command, status_vector)
-from alight.systems.params import ConfigError
+from alight.systems.params import ConfigError, load_params
 from alight.systems.thrust_curve import GRAVITY
 
 NAMES = ["se3", "mpc", "failsafe"]
@@ -248,3 +250,49 @@ def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
     assert parse_switch("12.5:mpc", NAMES) == (12.5, "mpc")
     with pytest.raises(ValueError, match="TIME:NAME"):
         parse_switch("soon:mpc", NAMES)
+
+
+def test_the_documented_example_controller_registers_and_flies(tmp_path, monkeypatch):
+    """docs/controllers.md: its example module, registered through a YAML factory entry, follows
+    the contract and, active on a hover estimate 0.5 m under the goal, commands a climb."""
+    page = (Path(__file__).parent.parent / "docs" / "controllers.md").read_text()
+    code = page.split("```python\n")[1].split("```")[0]
+    (tmp_path / "my_controllers.py").write_text(code)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    config = load_params(ControlManagerConfig, data=(
+        "controllers:\n  - {name: se3}\n  - {name: failsafe}\n"
+        "  - {name: bandwidth, factory: 'my_controllers:make_bandwidth_controller'}\n"))
+    check_control_manager_config(config)
+    controllers_config = load_controllers_config(config.controllers_file)
+    dut = build_controller(config.controllers[2], controllers_config)
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("state_estimate").FixValue(context, estimate([0.0, 0.0, 1.5]))
+    dut.GetInputPort("reference").FixValue(context, goal([0.0, 0.0, 2.0]))
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    dut.GetInputPort("last_command").FixValue(context, level_command(0.0, 0.0, HOVER_THRUST, 1.0))
+    Simulator(dut, context).AdvanceTo(0.5)
+    command = dut.GetOutputPort("fc_command").Eval(context)
+    status = dut.GetOutputPort("controller_status").Eval(context)
+    assert status[0] == 1.0 and np.all(np.isfinite(command))
+    # k_p e = 2.5^2 * 0.5 m = 3.1 m/s^2 up: more than hover thrust (after the activation ramp).
+    assert FC_COMMAND.get(command, "thrust") > HOVER_THRUST + 0.05
+
+
+def test_a_controller_takes_over_the_previous_ones_disturbance_estimates():
+    """M Sec. 7.2: the newly active controller starts from the previous one's state: the MPC,
+    activated with the SE(3)'s estimates on `last_disturbance`, publishes them from its first
+    tick (its integrators are frozen during the activation ramp)."""
+    from alight.diagrams.controllers import make_controller
+    from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
+    controllers_config = load_controllers_config()
+    dut = make_controller("mpc", controllers_config)
+    context = dut.CreateDefaultContext()
+    handed = DISTURBANCE_ESTIMATE.pack(d_w=[1.2, -0.4], d_b=[0.3, 0.1], m_e=2.8)
+    dut.GetInputPort("state_estimate").FixValue(context, estimate([0.0, 0.0, 2.0]))
+    dut.GetInputPort("reference").FixValue(context, goal([0.0, 0.0, 2.0]))
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    dut.GetInputPort("last_command").FixValue(context, level_command(0.0, 0.0, HOVER_THRUST, 1.0))
+    dut.GetInputPort("last_disturbance").FixValue(context, handed)
+    Simulator(dut, context).AdvanceTo(0.005)
+    np.testing.assert_allclose(dut.GetOutputPort("disturbance_estimate").Eval(context), handed,
+                               atol=1e-9)
