@@ -137,6 +137,7 @@ class BankState:
     filters: list[DecoupledKf]
     health: list[Health]
     seen: dict                      # source -> (last stamp, time of arrival)
+    raw: dict                       # source -> last message (new messages differ from it)
     gated: np.ndarray               # per filter: gate rejections
     active: int = 0
     active_since: float = 0.0
@@ -154,7 +155,7 @@ class BankState:
     def copy(self) -> "BankState":
         return dc.replace(self, filters=[f.copy() for f in self.filters],
                           health=[dc.replace(h, rejecting_since=h.rejecting_since.copy())
-                                  for h in self.health], seen=dict(self.seen),
+                                  for h in self.health], seen=dict(self.seen), raw=dict(self.raw),
                           gated=self.gated.copy())
 
 
@@ -185,7 +186,7 @@ class EstimatorBank(LeafSystem):
         state = BankState(
             filters=[DecoupledKf(f.model, params.period) for f in params.filters],
             health=[Health(rejecting_since=np.full(len(f), np.nan)) for f in self._fusions],
-            seen={},
+            seen={}, raw={},
             gated=np.zeros(len(params.filters)), active=initial)
         self._state = self.DeclareAbstractState(AbstractValue.Make(state))
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
@@ -227,6 +228,10 @@ class EstimatorBank(LeafSystem):
         return new
 
     def _accept(self, s: BankState, name: str, value, layout, now: float) -> bool:
+        """A new message of source `name` that is finite and in order (each counted once)."""
+        if np.array_equal(value, s.raw.get(name), equal_nan=True):
+            return False
+        s.raw[name] = np.array(value)
         stamp, valid = stamp_and_valid(layout, value)
         last = s.seen.get(name, (-np.inf, -np.inf))[0]
         if not valid or stamp == last:
