@@ -81,9 +81,26 @@ def _fly(args) -> int:
         print(f"alight fly: {e}", file=sys.stderr)
         return 2
     config = _vehicle_config(args)
+    odometry = log = None
+    if args.estimator != "mocap":
+        from alight.diagrams.estimation import BankOdometry, load_bank_params
+        from alight.systems.params import ConfigError
+        try:
+            params = load_bank_params(args.bank)
+            names = [f.name for f in params.filters]
+            if args.estimator not in ["bank", *names]:
+                raise ConfigError(f"--estimator {args.estimator!r} is not 'mocap', 'bank' or a "
+                                  f"filter of {args.bank}: {names}")
+        except ConfigError as e:
+            print(f"alight fly: {e}", file=sys.stderr)
+            return 2
+        odometry = BankOdometry(params, request=None if args.estimator == "bank"
+                                else args.estimator)
+        log = odometry.log
     meshcat = make_meshcat(args.meshcat, args.record)
     run = fly_waypoints(config, waypoints, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
-                        record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
+                        record=args.record, realtime_rate=1.0 if args.meshcat else 0.0,
+                        odometry=odometry, log=log)
     from alight.diagrams.fly import summarize_flight
     print("\n".join(summarize_flight(run)))
     _keep_meshcat_open(args)
@@ -306,6 +323,12 @@ def make_parser() -> argparse.ArgumentParser:
     _add_common(fly)
     fly.add_argument("--waypoints", required=True, metavar="'X,Y,Z; X,Y,Z; ...'",
                      help="waypoints in W [m], e.g. '0,0,5; 10,0,5; 10,10,3'")
+    fly.add_argument("--estimator", default="mocap", metavar="NAME",
+                     help="state estimate: 'mocap' (default), 'bank' (the arbiter chooses) or a "
+                          "filter of the bank (requested; the arbiter falls back if unreliable)")
+    fly.add_argument("--bank", default="estimator_bank.yaml", metavar="FILE.yaml",
+                     help="the estimator bank: sources, filters, arbiter (a path, or a file "
+                          "name in models/)")
     fly.set_defaults(run=_fly)
     sysid = sub.add_parser("sysid", help=COMMANDS["sysid"], description=COMMANDS["sysid"])
     _add_common(sysid)
