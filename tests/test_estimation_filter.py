@@ -19,7 +19,8 @@ from alight.systems.rotations import heading
 BANK = """
 period: 0.01
 sources: [{name: fix, kind: position_fix, timeout: 10.0}]
-filters: [{name: only, frame_id: 3, gate: {gate}, fuse: [fix.position, fc.heading, fc.heading_rate]}]
+filters:
+  - {name: only, frame_id: 3, gate: {gate}, fuse: [fix.position, fc.heading, fc.heading_rate]}
 """
 TILT = RollPitchYaw(np.radians(50.0), np.radians(35.0), 0.0).ToRotationMatrix().matrix()
 RATE = 0.6  # rad/s about e3
@@ -87,8 +88,8 @@ def test_heading_and_heading_rate_at_large_tilt_match_the_truth_unlike_yaw():
                        STATE_ESTIMATE.get(estimate, "heading_rate") - RATE,
                        np.angle(np.exp(1j * (yaw - eta_true))), w_B[2] - RATE])
     heading_error, rate_error, yaw_error, w3_error = np.abs(np.array(errors)).max(axis=0)
-    print(f"heading error {np.degrees(heading_error):.2f} deg vs Euler yaw {np.degrees(yaw_error):.1f}"
-          f" deg; heading rate error {rate_error:.4f} rad/s vs omega_3 {w3_error:.3f} rad/s")
+    print(f"heading error {np.degrees(heading_error):.2f} deg vs Euler yaw "
+          f"{np.degrees(yaw_error):.1f} deg; heading rate error {rate_error:.4f} rad/s vs omega_3 {w3_error:.3f} rad/s")
     assert np.degrees(heading_error) < 1.0 and rate_error < 0.02
     assert np.degrees(yaw_error) > 10.0 and w3_error > 0.2   # what the filter does not use
     # M(15) on its own and M(12)-(14): the orientation keeps b3 and takes the heading

@@ -53,8 +53,8 @@ def test_a_5_m_gnss_jump_moves_the_vehicle_less_than_0_3_m_with_the_bank(bank_ru
     moved = _moved(bank_run)
     status = bank_run["bank_status"]
     after = status[status["time"] > JUMP_TIME]
-    print(f"bank: vehicle moved {moved:.3f} m; gnss gate rejections {after['gnss_gated'].max():.0f},"
-          f" switches {after['switches'].max():.0f}")
+    print(f"bank: vehicle moved {moved:.3f} m; gnss gate rejections "
+          f"{after['gnss_gated'].max():.0f}, switches {after['switches'].max():.0f}")
     assert moved < 0.3
     assert after["gnss_gated"].max() > status[status["time"] <= JUMP_TIME]["gnss_gated"].max()
     assert after["gnss_reliable"].min() == 0.0   # the arbiter saw it fail the gate ...
