@@ -239,11 +239,10 @@ def _land_scenario(args):
 
 def _land(args) -> int:
     from alight.diagrams.hover import default_run_dir
-    from alight.diagrams.landing import run_landing
+    from alight.diagrams.landing import mission_transitions, run_landing
     from alight.diagrams.landing_plots import plot_mission, plot_paths
     from alight.diagrams.landing_score import score_landing
     from alight.diagrams.simulation import make_meshcat
-    from alight.systems.mission.landing import Mode, Reason
     from alight.systems.params import ConfigError
     try:
         scenario = _land_scenario(args)
@@ -258,11 +257,8 @@ def _land(args) -> int:
                       record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
     wall = time.perf_counter() - start
     score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
-    status = run["mission_status"]
-    changes = status[status["transitions"].diff().fillna(status["transitions"]) != 0]
-    for _, row in changes.iterrows():
-        print(f"  {row['time']:6.2f} s  {Mode(int(row['mode'])).name:11s} "
-              f"({Reason(int(row['reason'])).name.lower().replace('_', ' ')})")
+    for at, mode, reason in mission_transitions(run):
+        print(f"  {at:6.2f} s  {mode.name:11s} ({reason.name.lower().replace('_', ' ')})")
     print(f"{scenario.name} scenario, {scenario.camera} camera, seed {args.seed}:")
     print("  " + score.row())
     print(f"  plots {plot_mission(run, run.path / 'mission.png')}, "

@@ -17,7 +17,7 @@ from alight.diagrams.simulation import simulate
 from alight.models import model_path
 from alight.systems.boundary import FC_STATUS, TARGET_ESTIMATE
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
-                                            Mode)
+                                            Mode, Reason)
 from alight.systems.params import bounded, choice, load_params, validate
 from alight.systems.plant.wind import WindParams
 from alight.systems.sensors.camera_faults import CameraBlackout
@@ -147,3 +147,11 @@ def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=
         "command": "land", "seed": seed, "duration": simulator.get_context().get_time(),
         "scenario": scenario, "config": config})
     return RunLog(run_dir)
+
+
+def mission_transitions(run: RunLog) -> list[tuple[float, Mode, Reason]]:
+    """Every mode transition of a landing run: (time [s], new mode, reason)."""
+    status = run["mission_status"]
+    changed = status[status["transitions"].diff().fillna(status["transitions"]) != 0]
+    return [(float(r["time"]), Mode(int(r["mode"])), Reason(int(r["reason"])))
+            for _, r in changed.iterrows()]
