@@ -10,7 +10,7 @@ import yaml
 
 from alight.diagrams.campaign import campaign_jobs, run_campaign, summarize
 from alight.diagrams.cli import main
-from alight.diagrams.landing import load_scenario, run_landing
+from alight.diagrams.landing import load_scenario, mission_transitions, run_landing
 from alight.diagrams.landing_score import score_landing
 from alight.diagrams.run_log import RunLog
 from alight.models import model_path
@@ -56,11 +56,14 @@ def test_landed_disarms_and_the_vehicle_rests_on_the_moving_platform(landing):
     assert np.linalg.norm(v_rel) < 0.3                            # and carries the vehicle
 
 
-def test_target_swerving_in_landing_phase_2_is_scored_failed_by_the_physics(tmp_path):
+def test_target_swerving_in_landing_phase_2_is_scored_failed_by_the_physics(landing, tmp_path):
     """The seed-0 landing again, with the car pulled sharply aside (90 deg/s for 0.8 s) just after
-    Landing Phase 2 began: the mission, blind that close, still reaches Landed; the physics fails
-    the landing."""
-    scenario = dc.replace(load_scenario("field"), target_speed=SPEED, target_pull_times=[25.7])
+    Landing Phase 2 began (a scheduled pull draws no noise, so the run is the same until then): the
+    mission, blind that close, still reaches Landed; the physics fails the landing."""
+    _, run = landing
+    p2 = next(t for t, mode, _ in mission_transitions(run) if mode == Mode.LANDING_P2)
+    scenario = dc.replace(load_scenario("field"), target_speed=SPEED,
+                          target_pull_times=[p2 + 0.1])
     run = run_landing(scenario, seed=0, run_dir=tmp_path / "swerve")
     modes = run["mission_status"]["mode"]
     assert modes.iloc[-1] == Mode.LANDED

@@ -7,7 +7,9 @@ its planar joints [x, y, heading, vx, vy, heading rate]:
 - `field_test`: pulled by a rope along a mostly straight, wandering path (L Sec. 7: average speeds
   1.3-5.7 m/s): Ornstein-Uhlenbeck speed and turn rate, plus occasional sharp pulls to one side
   (random, at `pull_rate` per minute, and at fixed `pull_times`) like the paper's failed
-  experiment 12. Driven by a seeded `RandomSource`.
+  experiment 12. The puller keeps to a lane, the line through the start along the initial heading:
+  between pulls the heading is steered toward a point `lane_lookahead` ahead on that line
+  (lookahead 0: free wander). Driven by a seeded `RandomSource`.
 """
 import dataclasses as dc
 
@@ -48,6 +50,8 @@ class FieldTestParams:
     pull_times: list[float] = dc.field(default_factory=list)  # s
     pull_duration: float = bounded(0.8, 0.0, 10.0, "s")
     pull_turn_rate: float = bounded(90.0, 0.0, 720.0, "deg/s")
+    lane_lookahead: float = bounded(10.0, 0.0, 1000.0, "m")   # 0: no lane keeping
+    lane_time: float = bounded(1.5, 0.05, 600.0, "s")          # heading steering time constant
     period: float = bounded(0.01, 0.001, 1.0, "s")
     ramp_time: float = bounded(1.0, 0.0, 60.0, "s")
 
@@ -160,10 +164,24 @@ class TargetMotion(LeafSystem):
             self._state).get_value()
         f = self._field
         v = speed * _ramp(t, f.ramp_time)
-        omega = rate + (side * np.radians(f.pull_turn_rate) if pull_left > 0 else 0.0)
+        pulled = pull_left > 0
+        steer = side * np.radians(f.pull_turn_rate) if pulled else self._lane_rate(x, y, psi)
+        omega = rate + steer
         dt = t - t_k
         return np.array([x + v * np.cos(psi) * dt, y + v * np.sin(psi) * dt, psi + omega * dt,
                          v * np.cos(psi), v * np.sin(psi), omega])
+
+    def _lane_rate(self, x, y, psi) -> float:
+        """Turn rate steering the heading toward the lane point `lane_lookahead` ahead."""
+        f = self._field
+        if f.lane_lookahead <= 0:
+            return 0.0
+        c, s = np.cos(self._psi0), np.sin(self._psi0)
+        dx, dy = x - self._p0[0], y - self._p0[1]
+        cross = -s * dx + c * dy
+        desired = self._psi0 - np.arctan2(cross, f.lane_lookahead)
+        error = np.arctan2(np.sin(desired - psi), np.cos(desired - psi))
+        return float(error / f.lane_time)
 
     def _field_update(self, context, discrete_state):
         f = self._field
