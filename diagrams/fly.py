@@ -15,7 +15,7 @@ from alight.models import model_path
 from alight.systems.boundary import CONTROLLER_STATUS, FC_STATUS, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.arm_gate import ArmGate
 from alight.systems.control.linear_model import LinearModelParams
-from alight.systems.control.linear_mpc import LinearMpc, LinearMpcParams
+from alight.systems.control.linear_mpc import MPC_DISTURBANCE, LinearMpc, LinearMpcParams
 from alight.systems.mission.scripted_reference import ScriptedReference
 from alight.systems.mission.waypoints import Phase, WaypointMission, WaypointMissionParams
 from alight.systems.params import load_params
@@ -95,6 +95,8 @@ def add_mpc_logging(builder, loop: MpcLoop, reference_port) -> RunLoggers:
     loggers.add(builder, "reference", reference_port, REFERENCE)
     loggers.add(builder, "controller_status", loop.mpc.GetOutputPort("controller_status"),
                 CONTROLLER_STATUS, period=loop.mpc_period)
+    loggers.add(builder, "mpc_disturbance", loop.mpc.GetOutputPort("disturbance"),
+                MPC_DISTURBANCE, period=loop.mpc_period)
     return loggers
 
 

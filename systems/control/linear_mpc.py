@@ -10,6 +10,14 @@ linear cost term and the soft-constraint bounds change (L(27)).
 The reference position moves along the reference velocity over the horizon (L Sec. 6.3 notes the
 formulation handles a time-varying reference; a static one over a long horizon lags behind a
 moving target by about v * horizon / 2).
+
+The paper's controller has no integral action, so a steady wind leaves a constant offset (L Sec. 8,
+left to future work there). With `disturbance_gain` > 0 a constant acceleration disturbance d is
+estimated from the one-step velocity prediction error and added to the model, v_dot = L(11) + d
+(offset-free MPC): the prediction becomes x = Phi x0 + Gamma u + Psi d and the reference inputs
+hold the reference velocity against d. Only its horizontal part (wind) is estimated: the vertical
+balance is the identified thrust curve's, and on the ground (legs loaded, the vehicle cannot
+follow its commands) a vertical estimate would wind up. Gain 0 is the paper's controller.
 """
 import dataclasses as dc
 import enum
@@ -21,7 +29,7 @@ from pydrake.solvers import MathematicalProgram, OsqpSolver, SolverOptions
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
-                                     STATE_ESTIMATE, CommandMode)
+                                     STATE_ESTIMATE, CommandMode, VectorLayout)
 from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
                                                  LinearModelParams, continuous_model, discretize,
                                                  model_state, rotate_to_navigation)
@@ -52,9 +60,16 @@ class LinearMpcParams:
     max_tilt: float = bounded(20.0, 1.0, 60.0, "deg")                       # soft
     slack_penalty: float = bounded(1000.0, 0.0, 1e9)                        # lambda of L(25)
     osqp_eps: float = bounded(1e-4, 1e-8, 1e-1)
+    # Offset-free extension (not in the paper): fraction of the velocity prediction error added to
+    # the disturbance estimate per tick (0: off, the paper's controller), and its bound.
+    disturbance_gain: float = bounded(0.0, 0.0, 1.0)
+    max_disturbance: float = bounded(3.0, 0.0, 9.81, "m/s^2")
     # persistent: one warm-started osqp workspace built from the MathematicalProgram (fast);
     # drake: Drake's OsqpSolver, set up cold every tick (bench/mpc_solve.py compares them).
     solver: str = choice("persistent", "drake")
+
+
+MPC_DISTURBANCE = VectorLayout("mpc_disturbance", [("d_W", 3)])  # the `disturbance` output
 
 
 class MpcReason(enum.IntEnum):
@@ -79,6 +94,16 @@ def prediction_matrices(Ad: np.ndarray, Bd: np.ndarray, N: int) -> tuple[np.ndar
     return Phi, Gamma
 
 
+def disturbance_matrices(A: np.ndarray, dt: float, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """E_d (n x 3), the one-step effect of a constant acceleration disturbance on the state, and
+    Psi (N*n x 3), its effect over the horizon: x_bar = Phi x0 + Gamma u_bar + Psi d."""
+    E = np.zeros((NUM_STATES, 3))
+    E[3:6] = np.eye(3)
+    Ad, Ed = discretize(A, E, dt)
+    _, Gamma_d = prediction_matrices(Ad, Ed, N)
+    return Ed, Gamma_d @ np.tile(np.eye(3), (N, 1))
+
+
 def soft_constraint_rows() -> np.ndarray:
     """G of one step: +-v_x, +-v_y, +-v_z, +-theta, +-phi <= h."""
     G = np.zeros((10, NUM_STATES))
@@ -93,8 +118,10 @@ class LinearMpcQp:
     def __init__(self, model: LinearModelParams, p: LinearMpcParams):
         N, m = p.horizon_steps, NUM_INPUTS
         self.N = N
-        Ad, Bd = discretize(*continuous_model(model), p.period)
-        self.Phi, self.Gamma = prediction_matrices(Ad, Bd, N)
+        A, B = continuous_model(model)
+        self.Ad, self.Bd = discretize(A, B, p.period)
+        self.Ed, self.Psi = disturbance_matrices(A, p.period, N)
+        self.Phi, self.Gamma = prediction_matrices(self.Ad, self.Bd, N)
         w_state = np.concatenate([p.weight_position, p.weight_velocity, p.weight_angles,
                                   p.weight_rates])
         self.W = np.tile(w_state, N)
@@ -146,17 +173,19 @@ class LinearMpcQp:
             self.options.SetOption(OsqpSolver.id(), name, value)
 
     def update(self, x0: np.ndarray, s_y: np.ndarray, s_u: np.ndarray,
-               u_previous: np.ndarray | None = None) -> None:
-        """New linear cost term and soft bounds for the state x0, the references (N*n, N*m) and
-        the input applied last tick (None: no move suppression of the first input)."""
-        f = self.Gamma.T @ (self.W * (self.Phi @ x0 - s_y)) - self.Rw * s_u
+               u_previous: np.ndarray | None = None, d: np.ndarray = np.zeros(3)) -> None:
+        """New linear cost term and soft bounds for the state x0, the references (N*n, N*m), the
+        input applied last tick (None: no move suppression of the first input) and the estimated
+        acceleration disturbance d (N frame)."""
+        free = self.Phi @ x0 + self.Psi @ d  # the predicted states with zero inputs
+        f = self.Gamma.T @ (self.W * (free - s_y)) - self.Rw * s_u
         if u_previous is not None:
             e = np.zeros(len(f))
             e[:NUM_INPUTS] = u_previous
             f -= self.D.T @ (self.Wd * e)
         self.cost.evaluator().UpdateCoefficients(self._H2, 2.0 * f, 0.0, True)
         bound = self.h.copy()
-        bound[:self.num_state_rows] -= self.G_bar @ (self.Phi @ x0)
+        bound[:self.num_state_rows] -= self.G_bar @ free
         self.soft.evaluator().UpdateUpperBound(bound)
 
     def solve(self) -> QpResult:
@@ -183,7 +212,8 @@ class LinearMpc(LeafSystem):
             (position, velocity, heading); `active` (1); `last_command` FC_COMMAND;
             `fc_attitude` FC_ATTITUDE (pitch, roll and body rates for L(17))
     Outputs `fc_command` FC_COMMAND (attitude+thrust), `controller_status` CONTROLLER_STATUS,
-            `prediction` (N x 3 inputs of the last solution, flattened)
+            `prediction` (N x 3 inputs of the last solution, flattened),
+            `disturbance` (3) the estimated acceleration disturbance d_W [m/s^2] (zero when off)
     """
 
     def __init__(self, model: LinearModelParams, params: LinearMpcParams):
@@ -202,10 +232,16 @@ class LinearMpc(LeafSystem):
             valid=0.0, reason=MpcReason.INACTIVE, compute_time=0.0, solver_status=0.0))
         self._solution = self.DeclareDiscreteState(np.full(N * NUM_INPUTS, np.nan))
         self._failures = self.DeclareDiscreteState(1)
+        # [d_W (3), velocity predicted for this tick in W (3), NaN: none]
+        self._disturbance = self.DeclareDiscreteState(np.concatenate([np.zeros(3),
+                                                                      np.full(3, np.nan)]))
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         self.DeclareStateOutputPort("fc_command", self._command)
         self.DeclareStateOutputPort("controller_status", self._status)
         self.DeclareStateOutputPort("prediction", self._solution)
+        self.DeclareVectorOutputPort(
+            "disturbance", 3, lambda context, out: out.SetFromVector(
+                context.get_discrete_state(self._disturbance).get_value()[:3]))
 
     def _hover_command(self, stamp: float, heading: float) -> np.ndarray:
         thrust = float(self._curve.thrust(self._model.mass * GRAVITY))
@@ -222,14 +258,17 @@ class LinearMpc(LeafSystem):
                                q_WD=RollPitchYaw(roll, pitch, heading).ToQuaternion().wxyz(),
                                w_D=np.zeros(3), thrust=float(self._curve.thrust(force)), arm=1.0)
 
-    def references(self, reference: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
-        """s_y (N*n) and s_u (N*m) in N, relative to the reference position at t = 0."""
+    def references(self, reference: np.ndarray, yaw: float,
+                   d_N: np.ndarray = np.zeros(3)) -> tuple[np.ndarray, np.ndarray]:
+        """s_y (N*n) and s_u (N*m) in N, relative to the reference position at t = 0: the inputs
+        that hold the reference velocity against the drag of L(11) and the disturbance d_N."""
         N, dt, m = self._p.horizon_steps, self._p.period, self._model
         v_N = rotate_to_navigation(REFERENCE.get(reference, "v"), yaw)
         s_y = np.zeros((N, NUM_STATES))
         s_y[:, 0:3] = np.outer(np.arange(1, N + 1) * dt, v_N)
         s_y[:, 3:6] = v_N
-        hold = np.array([m.c_x * v_N[0] / GRAVITY, -m.c_y * v_N[1] / GRAVITY, m.c_z * v_N[2]])
+        hold = np.array([(m.c_x * v_N[0] - d_N[0]) / GRAVITY,
+                         (d_N[1] - m.c_y * v_N[1]) / GRAVITY, m.c_z * v_N[2] - d_N[2]])
         s_y[:, 6:8] = hold[:2]
         return s_y.ravel(), np.tile(hold, N)
 
@@ -242,6 +281,7 @@ class LinearMpc(LeafSystem):
             discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
                 valid=0.0, reason=MpcReason.INACTIVE, compute_time=0.0, solver_status=0.0))
             discrete_state.set_value(self._failures, [0.0])
+            self._forget_prediction(context, discrete_state)
             return
         start = time.perf_counter()
         heading = float(REFERENCE.get(reference, "heading"))
@@ -259,8 +299,10 @@ class LinearMpc(LeafSystem):
                               STATE_ESTIMATE.get(estimate, "v_EB"), q_EB,
                               FC_ATTITUDE.get(attitude, "w_B"), REFERENCE.get(reference, "p"))
         previous = context.get_discrete_state(self._solution).get_value()[:NUM_INPUTS]
-        self._qp.update(x0, *self.references(reference, yaw),
-                        previous if np.all(np.isfinite(previous)) else None)
+        d_W = self._estimate_disturbance(context, STATE_ESTIMATE.get(estimate, "v_EB"))
+        d_N = rotate_to_navigation(d_W, yaw)
+        self._qp.update(x0, *self.references(reference, yaw, d_N),
+                        previous if np.all(np.isfinite(previous)) else None, d_N)
         result = self._qp.solve()
         solver_status = result.status
         if not result.ok:
@@ -268,6 +310,9 @@ class LinearMpc(LeafSystem):
                        start)
             return
         u = self._qp.inputs(result)
+        v_next_N = (self._qp.Ad @ x0 + self._qp.Bd @ u[0] + self._qp.Ed @ d_N)[3:6]
+        discrete_state.set_value(self._disturbance, np.concatenate(
+            [d_W, rotate_to_navigation(v_next_N, -yaw)]))
         discrete_state.set_value(self._command, self._to_command(u[0], now, heading))
         discrete_state.set_value(self._solution, u.ravel())
         discrete_state.set_value(self._failures, [0.0])
@@ -275,9 +320,28 @@ class LinearMpc(LeafSystem):
             valid=1.0, reason=MpcReason.OK, compute_time=time.perf_counter() - start,
             solver_status=solver_status))
 
+    def _estimate_disturbance(self, context, v_W: np.ndarray) -> np.ndarray:
+        """d_W moved by `disturbance_gain` of the velocity the model failed to predict over the
+        last tick, bounded to `max_disturbance` (no prediction yet, or gain 0: unchanged)."""
+        stored = context.get_discrete_state(self._disturbance).get_value()
+        d_W, v_predicted = stored[:3], stored[3:]
+        if self._p.disturbance_gain <= 0 or not np.all(np.isfinite(v_predicted)):
+            return d_W.copy()
+        error = np.asarray(v_W) - v_predicted
+        error[2] = 0.0
+        d_W = d_W + self._p.disturbance_gain * error / self._p.period
+        size = np.linalg.norm(d_W)
+        return d_W * min(1.0, self._p.max_disturbance / size) if size > 0 else d_W
+
+    def _forget_prediction(self, context, discrete_state):
+        """Keeps d_W but drops the velocity prediction that no applied command produced."""
+        d_W = context.get_discrete_state(self._disturbance).get_value()[:3]
+        discrete_state.set_value(self._disturbance, np.concatenate([d_W, np.full(3, np.nan)]))
+
     def _fail(self, context, discrete_state, now, heading, reason, solver_status, start):
         """Previous solution's next input once; then an invalid (but finite) level hover command."""
         failures = context.get_discrete_state(self._failures).get_value()[0]
+        self._forget_prediction(context, discrete_state)
         previous = context.get_discrete_state(self._solution).get_value().reshape(-1, NUM_INPUTS)
         if reason == MpcReason.FALLBACK and failures == 0 and np.all(np.isfinite(previous[1])):
             command, valid = self._to_command(previous[1], now, heading), 1.0
