@@ -23,6 +23,12 @@ manager forwards the previous controller's `disturbance_estimate`) and finite, f
 controller's estimates; they are frozen while the ramp lasts. When the estimator frame changes
 (frame_counter), the integrators are re-expressed in the new frame (M Sec. 3.5).
 
+Reference latency: the reference chi is advanced from its `stamp` to the tick time (at most
+`max_prediction`) along its own derivatives (v, a, j; heading by its rate). A tracker that
+updates on the same tick as the controller hands over the chi of the previous tick (Drake's
+discrete updates read the state before the tick); tracking that 10 ms old chi put the vehicle
+0.07 m behind the reference on the 7 m/s circle (measured, README "Flight-stack controllers").
+
 Estimate latency: the state estimate is predicted from its `stamp` to the tick time (at most
 `max_prediction`) with the last desired acceleration M(53) and the last commanded body rates, as
 an estimator's prediction step would. Without it, the 30 ms of the mocap source make the velocity
@@ -101,6 +107,18 @@ def command_is_usable(command: np.ndarray) -> bool:
     """A finite FC_COMMAND with thrust in [0, 1] (what a controller may start from)."""
     return bool(np.all(np.isfinite(command))
                 and 0.0 <= FC_COMMAND.get(command, "thrust") <= 1.0)
+
+
+def advance_reference(reference: np.ndarray, dt: float) -> np.ndarray:
+    """REFERENCE chi advanced by `dt` [s] along its derivatives (constant jerk, constant heading
+    rate), stamped `dt` later."""
+    L = REFERENCE
+    p, v, a, j = (L.get(reference, k) for k in ("p", "v", "a", "j"))
+    return L.pack(stamp=L.get(reference, "stamp") + dt,
+                  p=p + v * dt + a * dt ** 2 / 2 + j * dt ** 3 / 6, v=v + a * dt + j * dt ** 2 / 2,
+                  a=a + j * dt, j=j, heading=L.get(reference, "heading")
+                  + L.get(reference, "heading_rate") * dt,
+                  heading_rate=L.get(reference, "heading_rate"))
 
 
 _INTERNAL = VectorLayout("force_controller_state", [
@@ -217,6 +235,8 @@ class ForceController(LeafSystem):
 
     def _compute(self, context, discrete_state, x, estimate, reference, start) -> None:
         now = context.get_time()
+        reference = advance_reference(reference, float(np.clip(
+            now - REFERENCE.get(reference, "stamp"), 0.0, self._max_prediction)))
         p, v, R = self._predict(context, estimate, now)
         eta = heading(R)
         e_p = p - REFERENCE.get(reference, "p")
