@@ -10,9 +10,9 @@ from alight.diagrams.hover import default_run_dir
 from alight.diagrams.mocap import add_mocap
 from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
 from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import simulate
+from alight.diagrams.simulation import DisarmedAfter, evaluate, simulate
 from alight.models import model_path
-from alight.systems.boundary import CONTROLLER_STATUS, FC_STATUS, REFERENCE, STATE_ESTIMATE
+from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.arm_gate import ArmGate
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import MPC_DISTURBANCE, LinearMpc, LinearMpcParams
@@ -62,12 +62,23 @@ def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, me
                  mpc_params: LinearMpcParams | None = None,
                  model: LinearModelParams | None = None, odometry=None,
                  estimate_filter=None) -> MpcLoop:
-    """Simulated vehicle + odometry + linear MPC (+ arm gate) following `reference_port`.
-    `odometry(builder, vehicle) -> STATE_ESTIMATE port` builds the state estimate from the vehicle
-    diagram's ports (default `mocap_odometry()`; VIO and the estimator bank plug in here); an
-    odometry with `connect_command(builder, port)` is also given the issued command;
-    `estimate_filter(builder, port) -> port` may alter the estimate (fault injection in tests)."""
+    """The simulated vehicle of `config` closed by `add_mpc_control` (arguments as there)."""
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
+    return add_mpc_control(builder, vehicle, reference_port, arm_port, mpc_params, model,
+                           odometry, estimate_filter)
+
+
+def add_mpc_control(builder, vehicle, reference_port, arm_port,
+                    mpc_params: LinearMpcParams | None = None,
+                    model: LinearModelParams | None = None, odometry=None,
+                    estimate_filter=None) -> MpcLoop:
+    """Onboard: odometry + linear MPC (+ arm gate) following `reference_port` and commanding
+    `vehicle` through its boundary ports only (the simulated or the MAVLink vehicle).
+    `odometry(builder, vehicle) -> STATE_ESTIMATE port` builds the state estimate (default
+    `mocap_odometry()`, simulation only; VIO, the estimator bank and the MAVLink side's channel
+    mocap plug in here); an odometry with `connect_command(builder, port)` is also given the
+    issued command; `estimate_filter(builder, port) -> port` may alter the estimate (fault
+    injection in tests)."""
     estimate = (odometry or mocap_odometry())(builder, vehicle)
     if estimate_filter is not None:
         estimate = estimate_filter(builder, estimate)
@@ -100,42 +111,53 @@ def add_mpc_logging(builder, loop: MpcLoop, reference_port) -> RunLoggers:
     return loggers
 
 
+@dc.dataclass
+class WaypointOnboard:
+    """Handles to the onboard side of `alight fly` built by `add_waypoint_onboard`."""
+    mission: WaypointMission
+    loop: MpcLoop
+    loggers: RunLoggers
+
+    def finished(self, rest: float = 1.0):
+        """Stop condition: `rest` s after the mission landed and the flight controller disarmed."""
+        return DisarmedAfter(lambda context: evaluate(self.mission, "phase", context)[0]
+                             == Phase.LANDED, self.loop.vehicle, rest)
+
+
+def add_waypoint_onboard(builder, vehicle, waypoints: np.ndarray,
+                         mission: WaypointMissionParams | None = None,
+                         odometry=None) -> WaypointOnboard:
+    """The onboard side of `alight fly` on `vehicle`'s boundary ports (simulated or MAVLink):
+    the waypoint mission, odometry and the linear MPC (`add_mpc_control`), and their logging."""
+    mission_system = builder.AddNamedSystem("mission", WaypointMission(
+        waypoints, mission or WaypointMissionParams()))
+    loop = add_mpc_control(builder, vehicle, mission_system.GetOutputPort("reference"),
+                           mission_system.GetOutputPort("arm"), odometry=odometry)
+    builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
+    loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
+    return WaypointOnboard(mission_system, loop, loggers)
+
+
 def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0,
                   run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
                   mission: WaypointMissionParams | None = None, max_duration: float = 300.0,
                   odometry=None, log=None) -> RunLog:
     """Takes off, visits the waypoints with the linear MPC, lands and disarms (`odometry` as in
-    `add_mpc_loop`; `log(builder, loggers)` may add streams of its own, e.g. the VIO's)."""
+    `add_mpc_control`; `log(builder, loggers)` may add streams of its own, e.g. the VIO's)."""
     builder = DiagramBuilder()
-    mission_system = WaypointMission(waypoints, mission or WaypointMissionParams())
-    builder.AddNamedSystem("mission", mission_system)
-    loop = add_mpc_loop(builder, config, mission_system.GetOutputPort("reference"),
-                        mission_system.GetOutputPort("arm"), meshcat, odometry=odometry)
-    builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
-    loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
+    onboard = add_waypoint_onboard(builder, vehicle, waypoints, mission, odometry)
     if log is not None:
-        log(builder, loggers)
-    phase = builder.ExportOutput(mission_system.GetOutputPort("phase"), "phase")
-    status = builder.ExportOutput(loop.vehicle.GetOutputPort("fc_status"), "fc_status")
+        log(builder, onboard.loggers)
     diagram = builder.Build()
-
-    def landed(context) -> bool:  # the mission has landed and the flight controller disarmed
-        return diagram.get_output_port(phase).Eval(context)[0] == Phase.LANDED and \
-            FC_STATUS.get(diagram.get_output_port(status).Eval(context), "armed") < 0.5
-    landed_at = []
-
-    def done(context) -> bool:  # 1 s after landing, so that the logs show the vehicle at rest
-        if landed(context) and not landed_at:
-            landed_at.append(context.get_time())
-        return bool(landed_at) and context.get_time() >= landed_at[0] + 1.0
-
-    simulator = simulate(diagram, _mission_duration(waypoints, max_duration), seed, meshcat,
+    done = onboard.finished(rest=1.0)  # 1 s after landing, so that the logs show it at rest
+    simulator = simulate(diagram, mission_duration(waypoints, max_duration), seed, meshcat,
                          record, realtime_rate, stop_when=done)
     duration = simulator.get_context().get_time()
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("fly", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, onboard.loggers, simulator.get_context(), {
         "command": "fly", "seed": seed, "duration": duration, "config": config,
-        "waypoints": waypoints, "landed": bool(landed(simulator.get_context())),
+        "waypoints": waypoints, "landed": done.holds(simulator.get_context()),
         "mpc": load_linear_mpc(), "model": load_linear_model()})
     return RunLog(run_dir)
 
@@ -161,7 +183,7 @@ def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: 
     return RunLog(run_dir)
 
 
-def _mission_duration(waypoints: np.ndarray, max_duration: float) -> float:
+def mission_duration(waypoints: np.ndarray, max_duration: float) -> float:
     """A generous time budget: climb, legs at 2 m/s, landing, plus settling."""
     legs = np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum() if len(waypoints) > 1 else 0.0
     return min(max_duration, 15.0 + np.linalg.norm(waypoints[0]) / 2 + legs / 2.0

@@ -1,6 +1,8 @@
-"""The landing mission end to end (L Sec. 6-7): scenario files, the closed-loop diagram (simulated
-vehicle with the moving target and the down camera, odometry, target perception, the mission state
-machine L Sec. 6.4 with its reference generation L Sec. 6.3, the linear MPC) and `run_landing`.
+"""The landing mission end to end (L Sec. 6-7): scenario files, the onboard landing stack
+(`add_landing_onboard`: odometry, target perception, the mission state machine L Sec. 6.4 with its
+reference generation L Sec. 6.3, the linear MPC) on any vehicle, the simulated vehicle in the
+scenario's world (`vehicle_config`: the moving target, the down camera, wind) and `run_landing`.
+`alight hil --mission land` puts the same onboard stack on the MAVLink vehicle (hw/hil.py).
 """
 import dataclasses as dc
 from pathlib import Path
@@ -8,14 +10,14 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.fly import add_mpc_loop, add_mpc_logging, load_linear_mpc
+from alight.diagrams.fly import MpcLoop, add_mpc_control, add_mpc_logging, load_linear_mpc
 from alight.diagrams.hover import default_run_dir
-from alight.diagrams.perception import add_target_perception
-from alight.diagrams.run_log import RunLog, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, load_sim_vehicle_config
-from alight.diagrams.simulation import simulate
+from alight.diagrams.perception import TargetPerceptionPorts, add_target_perception
+from alight.diagrams.run_log import RunLog, RunLoggers, write_run_folder
+from alight.diagrams.sim_vehicle import SimVehicleConfig, load_sim_vehicle_config, make_sim_vehicle
+from alight.diagrams.simulation import DisarmedAfter, evaluate, simulate
 from alight.models import model_path
-from alight.systems.boundary import FC_STATUS, TARGET_ESTIMATE
+from alight.systems.boundary import TARGET_ESTIMATE
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
                                             Mode, Reason)
 from alight.systems.params import bounded, choice, load_params, validate
@@ -96,15 +98,33 @@ def vehicle_config(scenario: LandingScenario) -> SimVehicleConfig:
     return config
 
 
-def build_landing(builder: DiagramBuilder, scenario: LandingScenario, meshcat=None,
-                  odometry=None):
-    """Adds the closed loop; returns (loop handles of add_mpc_loop, mission, perception, loggers)."""
-    config = vehicle_config(scenario)
+@dc.dataclass
+class LandingOnboard:
+    """Handles to the onboard landing stack built by `add_landing_onboard`."""
+    mission: LandingMission
+    loop: MpcLoop
+    perception: TargetPerceptionPorts
+    loggers: RunLoggers
+
+    def finished(self, settle_time: float) -> DisarmedAfter:
+        """Stop condition: `settle_time` s after the mission landed and the flight controller
+        disarmed."""
+        return DisarmedAfter(lambda context: MISSION_STATUS.get(evaluate(
+            self.mission, "mission_status", context), "mode") == Mode.LANDED,
+            self.loop.vehicle, settle_time)
+
+
+def add_landing_onboard(builder: DiagramBuilder, scenario: LandingScenario, vehicle,
+                        odometry=None) -> LandingOnboard:
+    """The onboard landing stack on `vehicle`'s boundary ports (the simulated or the MAVLink
+    vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, odometry and
+    the linear MPC (`add_mpc_control`), target perception on `down_image` (with the scenario's
+    camera blackouts) and the run logging. `odometry` as in `add_mpc_control`."""
     mission = builder.AddNamedSystem("mission", LandingMission(scenario.mission))
-    loop = add_mpc_loop(builder, config, mission.GetOutputPort("reference"),
-                        mission.GetOutputPort("arm"), meshcat, odometry=odometry,
-                        mpc_params=load_linear_mpc(scenario.mpc))
-    image = loop.vehicle.GetOutputPort("down_image")
+    loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
+                           mission.GetOutputPort("arm"), odometry=odometry,
+                           mpc_params=load_linear_mpc(scenario.mpc))
+    image = vehicle.GetOutputPort("down_image")
     if scenario.camera_blackouts:
         blackout = builder.AddNamedSystem("camera_blackout",
                                           CameraBlackout(scenario.camera_blackouts))
@@ -118,7 +138,15 @@ def build_landing(builder: DiagramBuilder, scenario: LandingScenario, meshcat=No
                 MISSION_STATUS, period=scenario.mission.period)
     loggers.add(builder, "target_estimate", perception.target_estimate, TARGET_ESTIMATE,
                 period=scenario.mission.period)
-    return config, loop, mission, loggers
+    return LandingOnboard(mission, loop, perception, loggers)
+
+
+def build_landing(builder: DiagramBuilder, scenario: LandingScenario, meshcat=None,
+                  odometry=None) -> tuple[SimVehicleConfig, LandingOnboard]:
+    """The simulated vehicle in the scenario's world with the onboard landing stack on it."""
+    config = vehicle_config(scenario)
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
+    return config, add_landing_onboard(builder, scenario, vehicle, odometry)
 
 
 def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=None,
@@ -126,24 +154,12 @@ def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=
     """Flies one landing mission; stops `settle_time` after the disarm (or at `max_duration`) and
     writes the run folder (streams, metadata with the scenario)."""
     builder = DiagramBuilder()
-    config, loop, mission, loggers = build_landing(builder, scenario, meshcat, odometry)
-    status = builder.ExportOutput(mission.GetOutputPort("mission_status"), "mission_status")
-    fc = builder.ExportOutput(loop.vehicle.GetOutputPort("fc_status"), "fc_status")
+    config, onboard = build_landing(builder, scenario, meshcat, odometry)
     diagram = builder.Build()
-    disarmed_at = []
-
-    def done(context) -> bool:
-        landed = MISSION_STATUS.get(diagram.get_output_port(status).Eval(context), "mode") \
-            == Mode.LANDED
-        if landed and not disarmed_at and \
-                FC_STATUS.get(diagram.get_output_port(fc).Eval(context), "armed") < 0.5:
-            disarmed_at.append(context.get_time())
-        return bool(disarmed_at) and context.get_time() >= disarmed_at[0] + scenario.settle_time
-
     simulator = simulate(diagram, scenario.max_duration, seed, meshcat, record, realtime_rate,
-                         stop_when=done)
+                         stop_when=onboard.finished(scenario.settle_time))
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("land", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, onboard.loggers, simulator.get_context(), {
         "command": "land", "seed": seed, "duration": simulator.get_context().get_time(),
         "scenario": scenario, "config": config})
     return RunLog(run_dir)

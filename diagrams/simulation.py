@@ -7,6 +7,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 
 from alight.diagrams.visualization import start_recording, write_recording
+from alight.systems.boundary import FC_STATUS
 
 
 def make_meshcat(live: bool, record: str | Path | None) -> Meshcat | None:
@@ -42,3 +43,26 @@ def simulate(diagram, duration: float, seed: int, meshcat: Meshcat | None = None
         path = write_recording(meshcat, record)
         print(f"Replay written to {path} (open it in a browser; no server needed)", flush=True)
     return simulator
+
+
+def evaluate(system, port: str, root_context):
+    """The value of `system`'s output `port` in a diagram's root context."""
+    return system.GetOutputPort(port).Eval(system.GetMyContextFromRoot(root_context))
+
+
+class DisarmedAfter:
+    """Stop condition for `simulate` and `run_realtime`: true `rest` s after the mission first says
+    it has landed (`mission_landed(root_context)`) with the vehicle's flight controller disarmed."""
+
+    def __init__(self, mission_landed, vehicle, rest: float):
+        self._mission_landed, self._vehicle, self._rest = mission_landed, vehicle, rest
+        self.at: float | None = None  # when it first held
+
+    def holds(self, context) -> bool:
+        return bool(self._mission_landed(context)) and bool(
+            FC_STATUS.get(evaluate(self._vehicle, "fc_status", context), "armed") < 0.5)
+
+    def __call__(self, context) -> bool:
+        if self.at is None and self.holds(context):
+            self.at = context.get_time()
+        return self.at is not None and context.get_time() >= self.at + self._rest
