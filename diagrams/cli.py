@@ -39,10 +39,11 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run-dir", help="run folder to write (default runs/<time>-<cmd>-s<seed>)")
 
 
-def _vehicle_config(args):
+def _vehicle_config(args, config=None):
+    """`config` (default: the --config file) with the command line's wind overrides."""
     from alight.diagrams.sim_vehicle import load_sim_vehicle_config
     from alight.systems.params import validate
-    config = load_sim_vehicle_config(args.config)
+    config = config or load_sim_vehicle_config(args.config)
     if args.wind is not None:
         config.wind.mean_speed = args.wind / 3.6
     if args.wind_direction is not None:
@@ -142,7 +143,16 @@ def _sim_autopilot(args) -> int:
     from alight.hw.connection import MavlinkConnectionError
     from alight.hw.sim_autopilot import load_sim_autopilot_params, run_sim_autopilot
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    config = _vehicle_config(args)
+    config = None
+    if args.scenario:  # the landing scenario's world: target, down camera, wind
+        from alight.diagrams.landing import vehicle_config
+        from alight.systems.params import ConfigError
+        try:
+            config = vehicle_config(_land_scenario(args))
+        except (ConfigError, FileNotFoundError) as e:
+            print(f"alight sim-autopilot: {e}", file=sys.stderr)
+            return 2
+    config = _vehicle_config(args, config)
     params = load_sim_autopilot_params(args.autopilot)
     frames = _frame_address(args.frames, args.listen)
     meshcat = make_meshcat(args.meshcat, args.record)
@@ -170,8 +180,12 @@ def _hil(args) -> int:
     from alight.hw.opencv_camera import CameraError
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     params = load_mavlink_vehicle_params(args.link_config)
-    options = MissionOptions(vehicle_config=load_sim_vehicle_config(args.config),
-                             profile=args.profile)
+    try:
+        options = MissionOptions(vehicle_config=load_sim_vehicle_config(args.config),
+                                 profile=args.profile, **_hil_mission_options(args))
+    except (ValueError, FileNotFoundError) as e:  # ConfigError is a ValueError
+        print(f"alight hil: {e}", file=sys.stderr)
+        return 2
     try:
         result = run_hil(args.connect, args.mission, options, params, duration=args.duration,
                          seed=args.seed, run_dir=args.run_dir,
@@ -184,7 +198,22 @@ def _hil(args) -> int:
         print(f"alight hil: {e}", file=sys.stderr)
         return 2
     print("\n".join(result.lines()))
+    if args.mission == "land":
+        from alight.diagrams.landing import mission_transitions
+        from alight.diagrams.run_log import RunLog
+        for at, mode, reason in mission_transitions(RunLog(result.run_dir)):
+            print(f"  {at:6.2f} s  {mode.name:11s} ({reason.name.lower().replace('_', ' ')})")
     return 1 if result.report.error else 0
+
+
+def _hil_mission_options(args) -> dict:
+    """The waypoints of --mission fly, the landing scenario of --mission land."""
+    if args.mission == "fly":
+        from alight.diagrams.fly import parse_waypoints
+        return {"waypoints": parse_waypoints(args.waypoints)}
+    if args.mission == "land":
+        return {"scenario": _land_scenario(args)}
+    return {}
 
 
 def _track(args) -> int:
@@ -233,8 +262,9 @@ def _thrust_curve(args) -> int:
 
 def _land_scenario(args):
     from alight.diagrams.campaign import CampaignJob, scenario_for
-    return scenario_for(CampaignJob(args.scenario, args.target_speed, args.seed, "", args.wind,
-                                    args.gusts, args.camera))
+    return scenario_for(CampaignJob(args.scenario, args.target_speed, args.seed, "",
+                                    getattr(args, "wind", None), getattr(args, "gusts", None),
+                                    getattr(args, "camera", None)))
 
 
 def _land(args) -> int:
@@ -349,6 +379,12 @@ def make_parser() -> argparse.ArgumentParser:
     autopilot.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
                            help="slow the simulation to R x real time, R in (0, 1] (a loaded "
                                 "machine; run `alight hil` with the same R)")
+    autopilot.add_argument("--scenario", metavar="NAME",
+                           help="simulate a landing scenario's world (field, mbzirc, or a YAML): "
+                                "its vehicle, moving target, down camera and wind (for `alight "
+                                "hil --mission land`); --wind/--gusts override its wind")
+    autopilot.add_argument("--target-speed", type=float, metavar="V",
+                           help="with --scenario: the target's speed in m/s")
     autopilot.set_defaults(run=_sim_autopilot)
     track = sub.add_parser("track", help=COMMANDS["track"], description=COMMANDS["track"])
     _add_common(track)
@@ -372,7 +408,17 @@ def make_parser() -> argparse.ArgumentParser:
     hil = sub.add_parser("hil", help=COMMANDS["hil"], description=COMMANDS["hil"])
     hil.add_argument("--connect", required=True,
                      help="udp:HOST:PORT, udpin:HOST:PORT, serial:/dev/ttyACM0:921600, ...")
-    hil.add_argument("--mission", default="hover", choices=["hover", "fly", "land"])
+    hil.add_argument("--mission", default="hover", choices=["hover", "fly", "land"],
+                     help="hover: scripted attitude/thrust profile; fly: --waypoints with the "
+                          "linear MPC; land: the landing mission of --scenario (fly and land "
+                          "read the simulated autopilot's mocap from the frame channel)")
+    hil.add_argument("--waypoints", default="0,0,2; 3,0,2", metavar="'X,Y,Z; ...'",
+                     help="waypoints of --mission fly in W [m]")
+    hil.add_argument("--scenario", default="field",
+                     help="landing scenario of --mission land (the same as the simulated "
+                          "autopilot's --scenario): its mission, MPC tuning, time limits")
+    hil.add_argument("--target-speed", type=float, metavar="V",
+                     help="with --mission land: the scenario's target speed in m/s")
     hil.add_argument("--profile", default="hover_profile.yaml",
                      help="pilot profile of --mission hover (a path, or a file name in models/)")
     hil.add_argument("--config", default="sim_vehicle.yaml",

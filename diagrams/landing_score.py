@@ -44,8 +44,12 @@ def _first(mask: np.ndarray) -> int | None:
     return int(index[0]) if len(index) else None
 
 
-def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float) -> LandingScore:
-    """Scores a `run_landing` run folder against the impact limits [m/s]."""
+def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
+                  mission_run: RunLog | None = None) -> LandingScore:
+    """Scores a `run_landing` run folder against the impact limits [m/s]. When the mission flew
+    in another process (`alight hil --mission land` against `alight sim-autopilot`), `run` is the
+    simulated autopilot's folder (ground truth, flight controller) and `mission_run` the
+    onboard one (its `mission_status`, its clock `autopilot_clock_offset` s behind `run`'s)."""
     truth = run["ground_truth"]
     t = truth["time"].to_numpy()
     p_B, v_B = run.field("ground_truth", "p_WB").to_numpy(), run.field("ground_truth",
@@ -55,9 +59,11 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float) -
     q_B, q_T = run.field("ground_truth", "q_WB").to_numpy(), run.field("ground_truth",
                                                                         "q_WT").to_numpy()
     rest = p_B[0, 2]  # on its legs on the ground at the start (ground at z = 0)
-    status = run["mission_status"]
+    status = (mission_run or run)["mission_status"]
     detections = status["first_detection"].dropna()
     first_detection = float(detections.iloc[0]) if len(detections) else np.nan
+    if mission_run is not None:
+        first_detection += mission_run.metadata["autopilot_clock_offset"]
     rel = p_B - p_T
     rel_T = np.einsum("nji,nj->ni", np.array([rotation_matrix(q) for q in q_T]), rel)
     over_platform = np.all(np.abs(rel_T[:, :2]) <= PLATFORM_HALF_SIZE, axis=1)

@@ -1,10 +1,12 @@
 """A local channel for camera frames between processes: camera images do not travel over MAVLink.
 
 The simulated autopilot publishes its cameras' `CameraFrame`s (whatever fields the camera ports
-hold) and the MAVLink vehicle's camera ports read them. Frames are pickled by
-`multiprocessing.connection` over a Unix socket after its HMAC authkey handshake, so only processes
-that know the key can connect; it is a same-machine channel, not a network protocol. Only the
-newest frame per camera is kept: a slow reader gets fewer frames (counted), never old ones.
+hold) and the MAVLink vehicle's camera ports read them. It also carries the simulated world's
+motion-capture estimate (`EstimateSample`, name "mocap"), as a mocap system streams poses to the
+companion computer beside the flight controller's link (hw/channel_odometry.py reads it). Items are
+pickled by `multiprocessing.connection` over a Unix socket after its HMAC authkey handshake, so only
+processes that know the key can connect; it is a same-machine channel, not a network protocol. Only
+the newest item per name is kept: a slow reader gets fewer (counted), never old ones.
 """
 import dataclasses as dc
 import logging
@@ -14,10 +16,33 @@ import tempfile
 import threading
 from multiprocessing.connection import Client, Listener
 
-from alight.systems.boundary import CameraFrame
+import numpy as np
+
+from alight.systems.boundary import STATE_ESTIMATE, CameraFrame
 
 LOG = logging.getLogger("alight.hw")
 DEFAULT_AUTHKEY = b"alight-camera-frames"
+
+
+@dc.dataclass
+class EstimateSample:
+    """A STATE_ESTIMATE vector from an odometry source of the simulated world (its mocap), stamped
+    on the autopilot's clock."""
+    value: np.ndarray
+
+    @property
+    def stamp(self) -> float:
+        return float(STATE_ESTIMATE.get(self.value, "stamp"))
+
+    @property
+    def valid(self) -> bool:
+        """Of the right size, finite, and flagged valid by its source."""
+        value = self.value
+        return isinstance(value, np.ndarray) and value.shape == (STATE_ESTIMATE.size,) \
+            and bool(np.all(np.isfinite(value))) and STATE_ESTIMATE.get(value, "valid") > 0.5
+
+
+CHANNEL_ITEMS = (CameraFrame, EstimateSample)
 
 
 def default_frame_address(name: str) -> str:
@@ -32,11 +57,12 @@ class ChannelCounters:
     sent: int = 0       # frames that reached a subscriber
     replaced: int = 0   # frames superseded by a newer one before they could be sent
     received: int = 0   # frames a subscriber got
-    invalid: int = 0    # objects that were not (camera name, CameraFrame)
+    invalid: int = 0    # objects that were not (name, CameraFrame or valid EstimateSample)
 
 
 class FramePublisher:
-    """Serves the newest frame of each camera to the one connected subscriber."""
+    """Serves the newest item (CameraFrame, EstimateSample) of each name to the one connected
+    subscriber."""
 
     def __init__(self, address: str, authkey: bytes = DEFAULT_AUTHKEY):
         if os.path.exists(address):
@@ -52,7 +78,7 @@ class FramePublisher:
         threading.Thread(target=self._accept_loop, name="frames-accept", daemon=True).start()
         threading.Thread(target=self._send_loop, name="frames-send", daemon=True).start()
 
-    def publish(self, camera: str, frame: CameraFrame) -> None:
+    def publish(self, camera: str, frame: CameraFrame | EstimateSample) -> None:
         with self._condition:
             self.counters.published += 1
             if camera in self._pending:
@@ -116,7 +142,7 @@ class FramePublisher:
 
 
 class FrameSubscriber:
-    """Connects to a publisher (retrying until it exists) and keeps the newest frame per camera."""
+    """Connects to a publisher (retrying until it exists) and keeps the newest item per name."""
 
     def __init__(self, address: str, authkey: bytes = DEFAULT_AUTHKEY, retry: float = 0.2):
         self.address = address
@@ -131,7 +157,7 @@ class FrameSubscriber:
                                         daemon=True)
         self._thread.start()
 
-    def latest(self, camera: str) -> CameraFrame | None:
+    def latest(self, camera: str) -> CameraFrame | EstimateSample | None:
         with self._lock:
             return self._latest.get(camera)
 
@@ -156,8 +182,7 @@ class FrameSubscriber:
                     if not self._connection.poll(0.2):
                         continue
                     item = self._connection.recv()
-                    if not (isinstance(item, tuple) and len(item) == 2
-                            and isinstance(item[0], str) and isinstance(item[1], CameraFrame)):
+                    if not _well_formed(item):
                         self.counters.invalid += 1
                         continue
                     with self._lock:
@@ -179,3 +204,10 @@ class FrameSubscriber:
         if connection is not None:
             connection.close()
         self._thread.join(timeout=2.0)
+
+
+def _well_formed(item) -> bool:
+    """(name, CameraFrame) or (name, EstimateSample) with a valid estimate."""
+    return isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], str) \
+        and isinstance(item[1], CHANNEL_ITEMS) \
+        and (not isinstance(item[1], EstimateSample) or item[1].valid)

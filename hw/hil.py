@@ -1,19 +1,23 @@
 """Hardware in the loop (`alight hil`): the onboard diagram against the MAVLink vehicle, in real
 time, with the real-time runner's overrun reports and final safe command.
 
-The onboard side is a mission: one function per `--mission` that adds its systems to the builder,
-connects them to the vehicle's ports and returns its `fc_command` port and its duration. Today
-`hover` flies the scripted hover profile (diagrams/hover.py); `fly` (the position MPC of
-diagrams/fly.py) and `land` plug in here as one entry each of MISSIONS once an onboard position
-estimate (VIO, the estimator bank) exists: over MAVLink there is no ground truth for mocap.
+The onboard side is a mission: one function per `--mission` that adds its systems to the builder
+on the vehicle's boundary ports and connects its command to the vehicle. `fly` and `land` are the
+very onboard functions the simulation uses (diagrams/fly.py `add_waypoint_onboard`,
+diagrams/landing.py `add_landing_onboard`), with the channel mocap (hw/channel_odometry.py) as
+their odometry; `hover` flies the scripted attitude/thrust profile (diagrams/hover.py) and needs no
+position estimate.
 """
 import dataclasses as dc
 from pathlib import Path
 from typing import Callable
 
-from pydrake.systems.framework import DiagramBuilder, OutputPort
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.run_log import RunLoggers, add_run_logging, write_run_folder
+from alight.hw.channel_odometry import channel_odometry
+from alight.hw.endpoint import LOG
 from alight.hw.frame_channel import FrameSubscriber
 from alight.hw.link import MavlinkLink
 from alight.hw.mavlink_vehicle import (LINK_STATUS, MavlinkVehicleParams, command_sender,
@@ -24,78 +28,97 @@ from alight.hw.realtime import RealtimeReport, WallClock, run_realtime
 @dc.dataclass
 class MissionOptions:
     """What a mission may need: the vehicle model the onboard side assumes (a SimVehicleConfig:
-    its airframe file), and the pilot profile for `hover`."""
+    its airframe file), the pilot profile of `hover`, the waypoints of `fly` (rows x, y, z) and
+    the landing scenario of `land` (its mission, MPC tuning, camera blackouts, time limits)."""
     vehicle_config: object
     profile: str = "hover_profile.yaml"
+    waypoints: np.ndarray | None = None
+    scenario: object | None = None
 
 
 @dc.dataclass
 class Mission:
-    fc_command: OutputPort
-    duration: float | None  # s, None: until Ctrl-C
+    loggers: RunLoggers
+    duration: float | None              # s, None: until Ctrl-C
+    finished: Callable | None = None    # stop condition on the root context (mission done)
+    metadata: dict = dc.field(default_factory=dict)
 
 
-def hover_mission(builder: DiagramBuilder, vehicle, options: MissionOptions) -> Mission:
+def hover_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
+                  odometry=None) -> Mission:
     """The scripted hover pilot (open-loop attitude/thrust profile: take off, hover, land)."""
     from alight.diagrams.hover import load_pilot_profile, pilot_model
     from alight.systems.control.scripted_pilot import ScriptedPilot
     profile = load_pilot_profile(options.profile)
     pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile,
                                                           pilot_model(options.vehicle_config)))
-    return Mission(pilot.GetOutputPort("fc_command"), profile.duration)
+    builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    return Mission(add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command")),
+                   profile.duration, metadata={"profile": options.profile})
+
+
+def fly_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
+                odometry=None) -> Mission:
+    """`alight fly`'s onboard side: the waypoints with the linear MPC, then land and disarm."""
+    from alight.diagrams.fly import add_waypoint_onboard, mission_duration
+    if options.waypoints is None:
+        raise MissionUnavailable("mission 'fly' needs waypoints (--waypoints '0,0,2; 3,0,2')")
+    onboard = add_waypoint_onboard(builder, vehicle, options.waypoints, odometry=odometry)
+    return Mission(onboard.loggers, mission_duration(options.waypoints, 300.0),
+                   onboard.finished(rest=1.0), {"waypoints": options.waypoints})
+
+
+def land_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
+                 odometry=None) -> Mission:
+    """`alight land`'s onboard side: find the target, follow it and land on it (L Sec. 6)."""
+    from alight.diagrams.landing import add_landing_onboard
+    scenario = options.scenario
+    if scenario is None:
+        raise MissionUnavailable("mission 'land' needs a landing scenario (--scenario)")
+    onboard = add_landing_onboard(builder, scenario, vehicle, odometry)
+    return Mission(onboard.loggers, scenario.max_duration,
+                   onboard.finished(scenario.settle_time), {"scenario": scenario})
 
 
 class MissionUnavailable(RuntimeError):
     pass
 
 
-def _unavailable(name: str, what: str) -> Callable:
-    message = f"mission '{name}' is not available over MAVLink yet: it needs {what} " \
-              f"(the simulation's mocap stand-in reads ground truth, which a MAVLink vehicle " \
-              f"does not have); use --mission hover"
-
-    def mission(builder, vehicle, options):
-        raise MissionUnavailable(message)
-    mission.unavailable = message
-    return mission
+MISSIONS: dict[str, Callable[..., Mission]] = {
+    "hover": hover_mission, "fly": fly_mission, "land": land_mission}
+NEEDS_ODOMETRY = {"fly", "land"}
 
 
-MISSIONS: dict[str, Callable[[DiagramBuilder, object, MissionOptions], Mission]] = {
-    "hover": hover_mission,
-    "fly": _unavailable("fly", "an onboard position estimate for the position MPC of "
-                               "diagrams/fly.py (VIO or the estimator bank)"),
-    "land": _unavailable("land", "the landing mission (target detection, EKF, landing MPC) and "
-                                 "an onboard position estimate"),
-}
-
-
-def check_mission(mission: str) -> None:
-    """Raises MissionUnavailable for an unknown mission or one that is not built yet."""
+def check_mission(mission: str, frame_address: str | None) -> None:
+    """Raises MissionUnavailable for an unknown mission, or one that needs a position estimate
+    without the frame channel that carries the simulated autopilot's mocap (`frame_address`
+    None: no channel)."""
     if mission not in MISSIONS:
         raise MissionUnavailable(f"unknown mission '{mission}'; one of {sorted(MISSIONS)}")
-    if hasattr(MISSIONS[mission], "unavailable"):
-        raise MissionUnavailable(MISSIONS[mission].unavailable)
+    if mission in NEEDS_ODOMETRY and frame_address is None:
+        raise MissionUnavailable(
+            f"mission '{mission}' needs a position estimate: against `alight sim-autopilot` it "
+            f"reads the simulated mocap from the frame channel (do not pass --frames none); on a "
+            f"real flight controller no onboard position source runs in real time yet (VIO "
+            f"does not keep up, docs/vio.md); use --mission hover")
 
 
 def make_hil_diagram(link: MavlinkLink, params: MavlinkVehicleParams, mission: str,
                      options: MissionOptions, frames: FrameSubscriber | None = None,
                      cameras: dict | None = None):
-    """(diagram, run loggers, mission duration): the MAVLink vehicle driven by `mission`."""
-    check_mission(mission)
+    """(diagram, mission): the MAVLink vehicle driven by `mission`, with its run loggers plus the
+    link's `link_status`."""
+    check_mission(mission, frames.address if frames is not None else None)
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames,
                                                                      cameras))
-    onboard = MISSIONS[mission](builder, vehicle, options)
-    builder.Connect(onboard.fc_command, vehicle.GetInputPort("fc_command"))
-    loggers = add_run_logging(builder, vehicle, onboard.fc_command)
-    from pydrake.systems.primitives import VectorLogSink
-    sink = builder.AddNamedSystem("log_link_status", VectorLogSink(LINK_STATUS.size, 0.01))
-    builder.Connect(vehicle.GetOutputPort("link_status"), sink.get_input_port())
-    loggers = RunLoggers({**loggers.vector_sinks, "link_status": (sink, LINK_STATUS)},
-                         loggers.imu_sink)
+    odometry = channel_odometry(frames, link) if frames is not None else None
+    onboard = MISSIONS[mission](builder, vehicle, options, odometry)
+    onboard.loggers.add(builder, "link_status", vehicle.GetOutputPort("link_status"),
+                        LINK_STATUS)
     diagram = builder.Build()
     diagram.set_name(f"hil_{mission}")
-    return diagram, loggers, onboard.duration
+    return diagram, onboard
 
 
 @dc.dataclass
@@ -121,35 +144,41 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
     `down_camera` (an OpenCV device, e.g. "/dev/video0") feeds `down_image` from a real camera
     calibrated by models/down_camera.yaml."""
     from alight.diagrams.hover import default_run_dir
-    check_mission(mission)
+    check_mission(mission, frame_address)
     clock = WallClock(realtime_rate)
     cameras = {"down_image": _down_camera(down_camera, clock)} if down_camera else {}
     link = MavlinkLink.open(connect, params.link, clock)
     frames = FrameSubscriber(frame_address) if frame_address else None
     try:
+        # Built before the autopilot answers, so that the mission starts as soon as it does (a
+        # simulated autopilot's world, e.g. the landing target, runs from its own start).
+        diagram, onboard = make_hil_diagram(link, params, mission, options, frames, cameras)
+        sender = command_sender(diagram.GetSubsystemByName("vehicle"))
+        LOG.info("hil: %s mission built; waiting for the autopilot on %s", mission, connect)
         link.wait_for_autopilot(wait)
         rates = link.request_message_rates()
         if follow_autopilot_clock:
             link.follow_autopilot_clock()
-        diagram, loggers, mission_duration = make_hil_diagram(link, params, mission, options,
-                                                              frames, cameras)
-        sender = command_sender(diagram.GetSubsystemByName("vehicle"))
 
         def safe_stop() -> str:
             sender.wait_idle()
             return link.safe_stop()
         simulator, report = run_realtime(
-            diagram, duration or mission_duration, clock, seed=seed, safe_stop=safe_stop,
-            pace=link.autopilot_time if follow_autopilot_clock else None)
+            diagram, duration or onboard.duration, clock, seed=seed, safe_stop=safe_stop,
+            pace=link.autopilot_time if follow_autopilot_clock else None,
+            stop_when=onboard.finished)
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir(f"hil-{mission}",
                                                                              seed)
-        write_run_folder(run_dir, loggers, simulator.get_context(), {
+        write_run_folder(run_dir, onboard.loggers, simulator.get_context(), {
             "command": "hil", "mission": mission, "connect": connect, "seed": seed,
             "duration": simulator.get_context().get_time(), "vehicle": params,
-            "profile": options.profile, "message_rates": rates, "realtime_rate": realtime_rate,
+            **onboard.metadata, "message_rates": rates, "realtime_rate": realtime_rate,
             "follow_autopilot_clock": follow_autopilot_clock,
             "realtime": dc.asdict(report), "link": dc.asdict(link.counters_snapshot()),
-            "arming_errors": sender.last_error})
+            "frames": dc.asdict(frames.counters) if frames is not None else None,
+            "autopilot_clock_offset": -link.to_local(0.0),
+            "mission_finished": onboard.finished is not None
+            and onboard.finished.at is not None, "arming_errors": sender.last_error})
         return HilResult(report, run_dir, rates)
     finally:
         link.close()

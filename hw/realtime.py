@@ -109,10 +109,10 @@ class _Terminate(Exception):
 def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 0,
                  safe_stop: Callable[[], str] | None = None, tick: float = 0.01,
                  overrun_tolerance: float = 0.02, simulator: Simulator | None = None,
-                 pace: Callable[[], float] | None = None, pace_stall: float = 1.0
-                 ) -> tuple[Simulator, RealtimeReport]:
+                 pace: Callable[[], float] | None = None, pace_stall: float = 1.0,
+                 stop_when: Callable | None = None) -> tuple[Simulator, RealtimeReport]:
     """Runs `diagram` in real time (at `clock.rate`) until `duration` (None: until Ctrl-C /
-    SIGTERM).
+    SIGTERM) or until `stop_when(root_context)` is true after a tick (the mission is done).
 
     Each `tick` of diagram time is one `AdvanceTo`; a tick that ends more than
     `overrun_tolerance` behind the wall clock is an overrun (logged, counted). Whatever ends the
@@ -153,6 +153,8 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
                 if overruns <= 5 or overruns % 100 == 0:
                     LOG.warning("real-time overrun %d: %.1f ms behind the wall clock at t = "
                                 "%.2f s", overruns, 1e3 * lag, t)
+            if stop_when is not None and stop_when(context):
+                break
     except (KeyboardInterrupt, _Terminate):
         interrupted = True
     except Exception as e:

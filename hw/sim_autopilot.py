@@ -8,7 +8,10 @@ EXTENDED_SYS_STATE, SYS_STATUS, AUTOPILOT_VERSION, TIMESYNC answers, COMMAND_ACK
 it obeys SET_ATTITUDE_TARGET (attitude+thrust and rates+thrust), MAV_CMD_COMPONENT_ARM_DISARM,
 MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_LAND, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE and
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py. Camera
-frames go to the onboard side over the local frame channel (hw/frame_channel.py).
+frames and the simulated world's mocap estimate (the `mocap` sensor model of DESIGN.md: true pose
+plus noise and latency) go to the onboard side over the local frame channel (hw/frame_channel.py).
+The world is the vehicle config's: with a landing scenario's (diagrams/landing.py
+`vehicle_config`), the moving target, the down camera and the wind.
 """
 import collections
 import dataclasses as dc
@@ -29,13 +32,14 @@ from pymavlink.dialects.v20 import common as mavlink
 from alight.hw.autopilot_rules import ACCEPTED, UNSUPPORTED, Answer, AutopilotRules
 from alight.hw.connection import open_connection
 from alight.hw.endpoint import LOG, MavlinkEndpoint, addressed_to
-from alight.hw.frame_channel import FramePublisher
+from alight.hw.frame_channel import EstimateSample, FramePublisher
 from alight.hw.frames import b_to_frd, q_wb_to_nf
 from alight.hw.link import MILLI_G
 from alight.models import model_path
-from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, ActiveMode, CameraFrame,
-                                     ImuSamples)
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_ESTIMATE,
+                                     ActiveMode, CameraFrame, ImuSamples)
 from alight.systems.params import bounded, load_params
+from alight.systems.sensors.mocap import MocapParams
 
 # Telemetry streams and their default rates [Hz] (PX4's "onboard" MAVLink mode, roughly).
 STREAMS = {
@@ -176,9 +180,11 @@ class AutopilotEndpoint(MavlinkEndpoint):
 
 class AutopilotBridge(LeafSystem):
     """Input  `imu`, `fc_attitude`, `fc_status`, `rgbd`, `down_image` from the simulated vehicle
+    Input  `mocap` STATE_ESTIMATE of the world's mocap system (published on the frame channel)
     Output `fc_command` FC_COMMAND to the simulated vehicle
     Every `period`: handles what the link received (rules of hw/autopilot_rules.py), updates
-    `fc_command`, and sends the telemetry that is due (each new IMU sample once)."""
+    `fc_command`, sends the telemetry that is due (each new IMU sample once) and publishes new
+    camera frames and mocap samples on the frame channel, if any."""
 
     def __init__(self, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
                  rules: AutopilotRules, command_period: float, imu_period: float,
@@ -191,6 +197,7 @@ class AutopilotBridge(LeafSystem):
         self._status = self.DeclareVectorInputPort("fc_status", FC_STATUS.size)
         self._cameras = {name: self.DeclareAbstractInputPort(
             name, AbstractValue.Make(CameraFrame())) for name in ("rgbd", "down_image")}
+        self._mocap = self.DeclareVectorInputPort("mocap", STATE_ESTIMATE.size)
         initial = FC_COMMAND.pack(stamp=0.0, mode=1, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
                                   thrust=0.0, arm=0.0)
         self._command = self.DeclareDiscreteState(initial)
@@ -207,6 +214,7 @@ class AutopilotBridge(LeafSystem):
         self._last_imu_seq = -1
         self._last_imu_sent = {"HIGHRES_IMU": -math.inf, "SCALED_IMU": -math.inf}
         self._frame_stamps = {name: -math.inf for name in self._cameras}
+        self._mocap_stamp = -math.inf
 
     def _update(self, context, discrete_state):
         """Cheap when nothing is due: this runs every `period` (2 ms) in real time."""
@@ -223,9 +231,11 @@ class AutopilotBridge(LeafSystem):
                 self._next_heartbeat = now  # armed or mode changed: tell the client at once
             self._next_command = now + self._command_period - 1e-9
         self._send_telemetry(context, now)
-        if self._frames is not None and now >= self._next_frames:
-            self._publish_frames(context)
-            self._next_frames = now + 0.005
+        if self._frames is not None:
+            self._publish_mocap(context)
+            if now >= self._next_frames:
+                self._publish_frames(context)
+                self._next_frames = now + 0.005
 
     # --- link -> simulation ----------------------------------------------------------------
     def _handle_inbox(self, now, status):
@@ -368,6 +378,13 @@ class AutopilotBridge(LeafSystem):
                 self._frames.publish(name, frame)
 
 
+    def _publish_mocap(self, context):
+        sample = EstimateSample(np.array(self._mocap.Eval(context)))
+        if sample.valid and sample.stamp > self._mocap_stamp:
+            self._mocap_stamp = sample.stamp
+            self._frames.publish("mocap", sample)
+
+
 def _int16(values) -> list[int]:
     return [int(v) for v in np.clip(np.round(values), -32768, 32767)]
 
@@ -381,9 +398,12 @@ def _landed_state(status) -> int:
 
 
 def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
-                       frames: FramePublisher | None = None, meshcat=None):
-    """The simulated vehicle with the autopilot bridge closing its `fc_command` loop; returns
-    (diagram, run loggers)."""
+                       frames: FramePublisher | None = None, meshcat=None,
+                       mocap: MocapParams | None = None):
+    """The simulated vehicle with the autopilot bridge closing its `fc_command` loop and the
+    world's mocap system (`mocap`, default MocapParams(): the simulation's `mocap_odometry`)
+    feeding the frame channel; returns (diagram, run loggers)."""
+    from alight.diagrams.mocap import add_mocap
     from alight.diagrams.run_log import add_run_logging
     from alight.diagrams.sim_vehicle import make_sim_vehicle
     builder = DiagramBuilder()
@@ -395,6 +415,8 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
         vehicle_config.imu.period, frames))
     for name in ("imu", "fc_attitude", "fc_status", "rgbd", "down_image"):
         builder.Connect(vehicle.GetOutputPort(name), bridge.GetInputPort(name))
+    builder.Connect(add_mocap(builder, vehicle.GetOutputPort("ground_truth"),
+                              mocap or MocapParams()), bridge.GetInputPort("mocap"))
     builder.Connect(bridge.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     loggers = add_run_logging(builder, vehicle, bridge.GetOutputPort("fc_command"))
     diagram = builder.Build()

@@ -116,19 +116,21 @@ class FakeAutopilot:
 
 
 class SimAutopilotProcess:
-    """`alight sim-autopilot` in its own process on a free UDP port (no camera channel); `stop()`
-    sends Ctrl-C (SIGINT) and waits for the run folder."""
+    """`alight sim-autopilot` in its own process on a free UDP port (or `port`), without the camera
+    channel unless `frames` (then on the socket both sides derive from the port), with `args`
+    added to its command line; `stop()` sends Ctrl-C (SIGINT) and waits for the run folder."""
 
     def __init__(self, run_dir, duration: float = 120.0, realtime_rate: float = 1.0,
-                 ready_timeout: float = 60.0):
-        self.port = free_udp_port()
+                 ready_timeout: float = 60.0, port: int | None = None, frames: bool = False,
+                 args: tuple[str, ...] = ()):
+        self.port = port or free_udp_port()
         self.run_dir = run_dir
         self.stats = run_dir.parent / f"{run_dir.name}-stats.json"
         self.process = subprocess.Popen(
             [sys.executable, "-m", "alight.diagrams.cli", "sim-autopilot",
              "--listen", f"udp:127.0.0.1:{self.port}", "--duration", str(duration),
-             "--frames", "none", "--run-dir", str(run_dir), "--stats", str(self.stats),
-             "--realtime-rate", str(realtime_rate)],
+             *([] if frames else ["--frames", "none"]), "--run-dir", str(run_dir),
+             "--stats", str(self.stats), "--realtime-rate", str(realtime_rate), *args],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self.output: list[str] = []
         self._ready = threading.Event()
@@ -191,3 +193,42 @@ def lock_clock(link, autopilot: FrameEncoder, tc1_ns: int = 5_000_000_000) -> by
     link.feed(reply)
     assert link.timesync.locked
     return reply
+
+
+class HilProcess:
+    """`alight hil` in its own process, started before the simulated autopilot: it builds its
+    mission and waits for the autopilot, so that the mission starts with the autopilot's world
+    (the landing target drives from the autopilot's start)."""
+
+    def __init__(self, port: int, args: tuple[str, ...], ready_timeout: float = 60.0):
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "alight.diagrams.cli", "hil", "--connect",
+             f"udp:127.0.0.1:{port}", "--wait", "60", *args],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.output: list[str] = []
+        self._ready = threading.Event()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        if not self._ready.wait(ready_timeout):
+            self.process.kill()
+            raise RuntimeError("alight hil did not start:\n" + "".join(self.output))
+
+    def _read(self):
+        for line in self.process.stdout:
+            self.output.append(line)
+            if "waiting for the autopilot" in line:
+                self._ready.set()
+
+    def wait(self, timeout: float) -> int:
+        try:
+            status = self.process.wait(timeout)
+            self._reader.join(5.0)
+            return status
+        except subprocess.TimeoutExpired:
+            self.process.send_signal(signal.SIGINT)
+            self.process.wait(30)
+            raise
+
+    @property
+    def text(self) -> str:
+        return "".join(self.output)

@@ -1,6 +1,9 @@
-"""End to end on one machine: `alight hil --mission hover` flies `alight sim-autopilot` over MAVLink
-(UDP loopback), both in real time: it takes off, hovers and lands, the mission's own disarm ends the
-flight, and every IMU sample of the simulated autopilot crosses the link exactly once.
+"""End to end on one machine: `alight hil` flies `alight sim-autopilot` over MAVLink (UDP loopback),
+both in real time. `--mission hover`: it takes off, hovers and lands, the mission's own disarm ends
+the flight, and every IMU sample of the simulated autopilot crosses the link exactly once.
+`--mission fly`: the waypoints with the linear MPC on the simulated autopilot's mocap (frame
+channel). `--mission land`: the landing mission, unchanged, finds the moving target through the
+frame channel's down-camera frames and lands on it, judged by the autopilot's physics.
 
 The onboard side follows the simulated autopilot's clock (`--follow-autopilot-clock`): this test
 machine is shared, the vehicle simulation (1.85x real time on a free core) may fall behind the wall
@@ -10,10 +13,15 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
+from alight.diagrams.cli import main
+from alight.diagrams.landing import load_scenario, mission_transitions
+from alight.diagrams.landing_score import score_landing
 from alight.diagrams.run_log import read_run
 from alight.systems.boundary import ActiveMode
-from mavlink_fake import SimAutopilotProcess
+from alight.systems.mission.landing import Mode
+from mavlink_fake import HilProcess, SimAutopilotProcess, free_udp_port
 
 RATE = 1.0
 PROFILE = "hil_hover_profile.yaml"  # 15.6 s: climb to ~1 m, hover, descend, cut thrust
@@ -65,3 +73,85 @@ def test_hil_hover_against_the_sim_autopilot_takes_off_hovers_and_lands(tmp_path
     assert None not in matched and len(matched) > 200 * 10
     assert np.all(np.diff(matched) == 1)
     assert np.all(np.diff(hil_imu["time"]) > 0) and np.all(np.diff(hil_imu["seq"]) == 1)
+
+
+def fly_hil(tmp_path, hil_args, autopilot_args=(), duration=60.0, timeout=150.0):
+    """`alight hil` (started first, waiting) against `alight sim-autopilot` with the frame channel,
+    both at real-time rate 1, the onboard side following the autopilot's clock. Returns (hil exit
+    status, its output, the autopilot's run, the onboard run)."""
+    port = free_udp_port()
+    hil = HilProcess(port, (*hil_args, "--follow-autopilot-clock",
+                            "--run-dir", str(tmp_path / "hil")))
+    server = SimAutopilotProcess(tmp_path / "sim-autopilot", duration=duration, port=port,
+                                 frames=True, args=autopilot_args)
+    try:
+        status = hil.wait(timeout)
+    finally:
+        assert server.stop() == 0, "".join(server.output)
+    print(hil.text)  # the real-time report (overruns, rate): `pytest -s` shows it
+    return status, hil.text, read_run(server.run_dir), read_run(tmp_path / "hil")
+
+
+def assert_flew_offboard_to_the_end(status, text, sim, onboard):
+    assert status == 0, text
+    # The mission ended the flight (landed, disarmed): nothing left for the final safe command.
+    assert onboard.metadata["mission_finished"], text
+    assert "final safe command: disarmed: nothing to do" in text, text
+    modes = set(sim["fc_status"]["mode"])
+    assert ActiveMode.ATTITUDE_THRUST in modes and ActiveMode.FAILSAFE_DESCENT not in modes
+    assert sim["fc_status"]["armed"].iloc[-1] == 0.0
+    assert np.isfinite(onboard["fc_command"].to_numpy()).all()
+    assert onboard.metadata["frames"]["invalid"] == 0
+
+
+def test_hil_refuses_fly_and_land_without_the_channel_that_carries_the_mocap(capsys):
+    for mission in ("fly", "land"):
+        assert main(["hil", "--connect", "udp:127.0.0.1:9", "--mission", mission,
+                     "--frames", "none"]) == 2
+        assert "needs a position estimate" in capsys.readouterr().err
+
+
+WAYPOINTS = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]])
+
+
+def test_hil_fly_visits_the_waypoints_on_the_channel_mocap_and_lands(tmp_path):
+    status, text, sim, onboard = fly_hil(tmp_path, (
+        "--mission", "fly", "--waypoints", "; ".join(",".join(map(str, w)) for w in WAYPOINTS)))
+    assert_flew_offboard_to_the_end(status, text, sim, onboard)
+    truth = sim["ground_truth"]
+    p = sim.field("ground_truth", "p_WB").to_numpy()
+    # Every waypoint visited within the mission's acceptance radius (0.3 m) plus 5 cm ...
+    for w in WAYPOINTS:
+        assert np.linalg.norm(p - w, axis=1).min() < 0.35, w
+    # ... and landed at rest near the last one.
+    assert abs(p[-1, 2] - p[0, 2]) < 0.03 and np.linalg.norm(p[-1, :2] - WAYPOINTS[-1, :2]) < 0.5
+    assert np.linalg.norm(sim.field("ground_truth", "v_WB").to_numpy()[-1]) < 0.05
+    # The onboard estimate is the autopilot's mocap, its stamps on the onboard clock: at the
+    # autopilot time of each stamp it matches the true position to mocap noise (1 mm) + 1 cm.
+    estimate = onboard["state_estimate"]
+    estimate = estimate[estimate["valid"] > 0.5]
+    assert len(estimate) > 100 * 5
+    t_autopilot = estimate["stamp"].to_numpy() + onboard.metadata["autopilot_clock_offset"]
+    true_p = np.column_stack([np.interp(t_autopilot, truth["time"], p[:, i]) for i in range(3)])
+    error = np.linalg.norm(estimate[["p_EB_0", "p_EB_1", "p_EB_2"]].to_numpy() - true_p, axis=1)
+    assert np.percentile(error, 99) < 0.011, np.percentile(error, 99)
+
+
+def test_hil_land_finds_the_moving_target_through_the_channel_and_lands_on_it(tmp_path):
+    """The field test at 2 m/s with a 14 s approach (models/scenario_field_hil.yaml)."""
+    scenario_args = ("--scenario", "scenario_field_hil.yaml", "--target-speed", "2")
+    status, text, sim, onboard = fly_hil(tmp_path, ("--mission", "land", *scenario_args),
+                                         (*scenario_args, "--seed", "0"), duration=60.0)
+    assert_flew_offboard_to_the_end(status, text, sim, onboard)
+    modes = [mode for _, mode, _ in mission_transitions(onboard)]
+    for mode in (Mode.FOLLOW, Mode.LANDING_P1, Mode.LANDING_P2, Mode.LANDED):
+        assert mode in modes, modes
+    # Judged by the autopilot's physics, as `alight land` is.
+    scenario = load_scenario("scenario_field_hil.yaml")
+    score = score_landing(sim, scenario.impact.vertical_speed, scenario.impact.horizontal_speed,
+                          mission_run=onboard)
+    print(score.row())
+    assert score.success, score.row()
+    assert score.e_xy < 0.5                      # L Table 1: 2.5 - 45.8 cm when landed
+    assert 2.0 < score.tracking_duration < 15.0  # L Table 1: 4.8 - 7.7 s
+    assert score.target_speed == pytest.approx(2.0, abs=0.6)
