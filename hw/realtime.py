@@ -57,6 +57,7 @@ class RealtimeReport:
     safe_stop: str           # what the final safe command did
     error: str = ""          # an exception that stopped the run, if any
     paced_wait: float = 0.0  # s of wall time spent waiting for the peer's clock (`pace`)
+    cpu_time: float = 0.0    # s of this process's CPU time (all threads) during the run
 
     @property
     def realtime_rate(self) -> float:
@@ -68,7 +69,9 @@ class RealtimeReport:
                 f"max lag {1e3 * self.max_lag:.1f} ms" + (", interrupted" if self.interrupted
                                                           else "")
                 + (f", {self.paced_wait:.2f} s waiting for the autopilot's clock"
-                   if self.paced_wait else ""),
+                   if self.paced_wait else "")
+                + (f", {self.cpu_time / self.sim_time:.2f} CPU s per simulated s"
+                   if self.sim_time > 0 else ""),
                 f"final safe command: {self.safe_stop}"] + ([f"error: {self.error}"]
                                                              if self.error else [])
 
@@ -135,7 +138,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     interrupted = False
     error = None
     clock.restart()
-    wall_start = time.monotonic()
+    wall_start, cpu_start = time.monotonic(), time.process_time()
     try:
         simulator.Initialize()
         end = math.inf if duration is None else duration
@@ -162,6 +165,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     finally:
         _restore_sigterm(previous)
         wall = time.monotonic() - wall_start
+        cpu = time.process_time() - cpu_start
         stop_answer = "none (no vehicle hook)"
         if safe_stop is not None:
             try:
@@ -170,7 +174,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
                 stop_answer = f"FAILED: {e}"
                 LOG.error("final safe command failed: %s", e)
     report = RealtimeReport(context.get_time(), wall, ticks, overruns, max_lag, interrupted,
-                            stop_answer, "" if error is None else repr(error), paced_wait)
+                            stop_answer, "" if error is None else repr(error), paced_wait, cpu)
     if error is not None:
         LOG.error("real-time run stopped by an error; %s", "; ".join(report.lines()))
         raise error

@@ -1,18 +1,20 @@
 """The local camera-frame channel (camera images do not travel over MAVLink): any `CameraFrame`
 (image, depth, calibration, geometric keypoints) crosses from the simulated autopilot's process to
 the MAVLink vehicle's camera ports intact, newest first, only to a subscriber with the key, with
-its stamp mapped from the autopilot's clock to the onboard clock."""
+its stamp mapped from the autopilot's clock to the onboard clock. The simulated world's mocap
+estimate crosses it too and becomes the onboard `state_estimate` (hw/channel_odometry.py)."""
 import time
 
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from alight.hw.frame_channel import FramePublisher, FrameSubscriber
+from alight.hw.channel_odometry import ChannelOdometry, ChannelOdometryParams
+from alight.hw.frame_channel import EstimateSample, FramePublisher, FrameSubscriber
 from alight.hw.link import LinkParams, MavlinkLink
 from alight.hw.mavlink_vehicle import MavlinkVehicleParams, make_mavlink_vehicle
 from alight.hw.realtime import WallClock
-from alight.systems.boundary import CameraFrame
+from alight.systems.boundary import STATE_ESTIMATE, CameraFrame
 from mavlink_fake import FrameEncoder, NullTransport, lock_clock
 
 RNG = np.random.default_rng(3)
@@ -156,3 +158,39 @@ def test_a_real_camera_through_opencv_feeds_the_down_image_port(tmp_path):
     time.sleep(0.6)
     wrong.close()
     assert wrong.counters.wrong_size == 20 and wrong.counters.captured == 0
+
+
+def mocap_sample(stamp: float, p_EB, valid: float = 1.0) -> EstimateSample:
+    return EstimateSample(STATE_ESTIMATE.pack(
+        stamp=stamp, p_EB=p_EB, v_EB=[1.0, 0, 0], a_EB=np.zeros(3), q_EB=[1, 0, 0, 0],
+        heading=0.0, heading_rate=0.0, var_pv=[1e-6] * 6, var_heading=1e-4, frame_id=0.0,
+        frame_counter=0.0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=valid))
+
+
+def test_the_channel_mocap_is_the_onboard_state_estimate_until_it_stops(channel):
+    publisher, subscriber = channel
+    link = MavlinkLink(NullTransport(), LinkParams(), WallClock(), datagrams=True)
+    lock_clock(link, FrameEncoder(1, 1), tc1_ns=100_000_000_000)  # the autopilot is at 100 s
+    dut = ChannelOdometry(subscriber, link, ChannelOdometryParams(timeout=0.2))
+    simulator = Simulator(dut)
+    context = simulator.get_mutable_context()
+    port = dut.GetOutputPort("state_estimate")
+    simulator.AdvanceTo(0.02)
+    assert STATE_ESTIMATE.get(port.Eval(context), "valid") == 0.0  # nothing received yet
+    publisher.publish("mocap", mocap_sample(100.5, [1.0, 2.0, 3.0]))
+    assert wait_for(lambda: subscriber.latest("mocap") is not None)
+    simulator.AdvanceTo(0.04)
+    estimate = port.Eval(context)
+    assert STATE_ESTIMATE.get(estimate, "valid") == 1.0
+    np.testing.assert_array_equal(STATE_ESTIMATE.get(estimate, "p_EB"), [1.0, 2.0, 3.0])
+    assert STATE_ESTIMATE.get(estimate, "stamp") == pytest.approx(link.to_local(100.5))
+    # A NaN or invalid sample never reaches the port: counted and dropped on the channel.
+    for count, bad in enumerate([mocap_sample(100.6, [np.nan, 0.0, 0.0]),
+                                 mocap_sample(100.7, [9.0, 9.0, 9.0], valid=0.0)], 1):
+        publisher.publish("mocap", bad)
+        assert wait_for(lambda: subscriber.counters.invalid == count)
+    simulator.AdvanceTo(0.06)
+    np.testing.assert_array_equal(STATE_ESTIMATE.get(port.Eval(context), "p_EB"), [1, 2, 3])
+    # The source stops: the estimate goes invalid `timeout` after its stamp.
+    simulator.AdvanceTo(STATE_ESTIMATE.get(estimate, "stamp") + 0.25)
+    assert STATE_ESTIMATE.get(port.Eval(context), "valid") == 0.0
