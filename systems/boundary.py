@@ -209,3 +209,16 @@ CONTROLLER_STATUS = VectorLayout("controller_status", [
 CONTROLLER_INPUTS = {"state_estimate": STATE_ESTIMATE, "reference": REFERENCE, "active": None,
                      "last_command": FC_COMMAND}
 CONTROLLER_OUTPUTS = {"fc_command": FC_COMMAND, "controller_status": CONTROLLER_STATUS}
+
+# `tracker_status`, next to every tracker's `reference` output (fields as CONTROLLER_STATUS).
+TRACKER_STATUS = VectorLayout("tracker_status", CONTROLLER_STATUS.fields)
+
+# The tracker contract (DESIGN.md "The onboard stack", M Sec. 4 and 7.2): every tracker is a
+# LeafSystem with inputs `state_estimate` (STATE_ESTIMATE), `goal` (abstract: a
+# alight.systems.tracking.goal.TrackerGoal, or a tracker-specific goal), `active` (1: only the
+# active one computes) and `last_reference` (REFERENCE: the reference the control manager issued
+# last; a tracker that becomes active starts from it), and outputs `reference` (REFERENCE, chi of
+# M(16) in E) and `tracker_status` (TRACKER_STATUS).
+TRACKER_INPUTS = {"state_estimate": STATE_ESTIMATE, "goal": None, "active": None,
+                  "last_reference": REFERENCE}
+TRACKER_OUTPUTS = {"reference": REFERENCE, "tracker_status": TRACKER_STATUS}
