@@ -1,1 +1,1 @@
-"""Feedforward trackers and trajectory generation (M Sec. 4 and 6): goals -> full-state reference chi."""
+"""Feedforward trackers and trajectory generation (M Sec. 4 and 6): goal -> reference chi."""
