@@ -139,3 +139,61 @@ def test_disturbance_integrators_ignore_errors_larger_than_max_error():
     state = disturbance.integrate(np.zeros(DISTURBANCE.size), np.array([5.0, 0.0, -3.0]), 0.0,
                                   0.01, gains, limits)
     np.testing.assert_array_equal(state, 0.0)
+
+
+def test_advance_reference_follows_the_circle_to_within_a_micrometre():
+    """A chi handed over one 10 ms tick late is moved to the tick time along its own v, a, j
+    (the force controllers do this with the reference's stamp)."""
+    from alight.systems.boundary import REFERENCE
+    from alight.systems.control.analytic_reference import AnalyticReference, Circle, Trajectory
+    from alight.systems.control.force_controller import advance_reference
+    chi = AnalyticReference(Trajectory([Circle(np.zeros(3), 5.0, 7.0, 2.0, 1.0, True)])).chi
+    advanced = advance_reference(chi(3.0), 0.01)
+    np.testing.assert_allclose(REFERENCE.get(advanced, "p"), REFERENCE.get(chi(3.01), "p"),
+                               atol=1e-6)
+    np.testing.assert_allclose(REFERENCE.get(advanced, "v"), REFERENCE.get(chi(3.01), "v"),
+                               atol=1e-4)
+    assert REFERENCE.get(advanced, "heading") == pytest.approx(
+        REFERENCE.get(chi(3.01), "heading"), abs=1e-9)
+    assert REFERENCE.get(advanced, "stamp") == pytest.approx(3.01)
+
+
+def test_controller_tilts_by_the_flight_controller_attitude_with_the_estimate_heading():
+    """With `fc_attitude` connected the orientation is the flight controller's tilt turned to the
+    estimate's heading (M footnote 18, M(12)-(14)); a non-finite message falls back to the
+    estimate's own orientation. Seen through the roll rate that levels a hovering vehicle."""
+    from alight.diagrams.controllers import load_controllers_config, make_controller
+    from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
+                                         CommandMode)
+    from alight.systems.rotations import heading_quaternion, quaternion_product
+    dut = make_controller("se3", load_controllers_config())
+    context = dut.CreateDefaultContext()
+    eta = 0.7
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.pack(
+        stamp=0.0, p_EB=[0, 0, 2.0], v_EB=np.zeros(3), a_EB=np.zeros(3),
+        q_EB=heading_quaternion(eta), heading=eta, heading_rate=0.0, var_pv=np.zeros(6),
+        var_heading=0.0, frame_id=0.0, frame_counter=0.0, p_OldNew=np.zeros(3),
+        q_OldNew=[1, 0, 0, 0], valid=1.0))
+    dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
+        stamp=0.0, p=[0, 0, 2.0], v=np.zeros(3), a=np.zeros(3), j=np.zeros(3), heading=eta,
+        heading_rate=0.0))
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    dut.GetInputPort("last_command").FixValue(context, FC_COMMAND.pack(
+        stamp=0.0, mode=CommandMode.RATES_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
+        thrust=0.64, arm=1.0))
+    # The flight controller's frame differs in heading by 2 rad; its body is rolled 10 deg.
+    roll = np.radians(10.0)
+    q_fc = quaternion_product(heading_quaternion(eta - 2.0),
+                              np.array([np.cos(roll / 2), np.sin(roll / 2), 0.0, 0.0]))
+
+    def roll_rate(fc_attitude):
+        dut.GetInputPort("fc_attitude").FixValue(context, fc_attitude)
+        context.SetDiscreteState(dut.EvalUniquePeriodicDiscreteUpdate(context))
+        return FC_COMMAND.get(dut.GetOutputPort("fc_command").Eval(context), "w_D")
+
+    tilted = FC_ATTITUDE.pack(stamp=0.0, q_WB=q_fc, w_B=np.zeros(3))
+    w_D = roll_rate(tilted)
+    assert w_D[0] == pytest.approx(-6.0 * np.sin(roll), rel=0.05)   # -k_R e_R, M(25)
+    assert abs(w_D[1]) < 0.02 and abs(w_D[2]) < 0.02   # no yaw: the heading is the estimate's
+    w_D = roll_rate(np.full(FC_ATTITUDE.size, np.nan))
+    np.testing.assert_allclose(w_D, 0.0, atol=1e-6)
