@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
 from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.diagrams.simulation import simulate
 from alight.models import model_path
@@ -58,6 +58,15 @@ def default_run_dir(command: str, seed: int) -> Path:
     return Path("runs") / f"{stamp}-{command}-s{seed}"
 
 
+def add_pilot_onboard(builder, vehicle, profile: PilotProfile, model: PilotModel,
+                      stop_at: float | None = None) -> RunLoggers:
+    """The onboard side of `alight hover` on `vehicle`'s ports (simulated or MAVLink): the
+    scripted pilot commanding it, and the run logging."""
+    pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile, model, stop_at=stop_at))
+    builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    return add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command"))
+
+
 def fly_profile(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
                 run_dir: str | Path | None = None, meshcat=None, record=None,
                 realtime_rate: float = 0.0, duration: float | None = None,
@@ -66,10 +75,7 @@ def fly_profile(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
     `pilot_stops_at` freezes the pilot's output from that time (a companion computer that dies)."""
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
-    pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile, pilot_model(config),
-                                                          stop_at=pilot_stops_at))
-    builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    loggers = add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command"))
+    loggers = add_pilot_onboard(builder, vehicle, profile, pilot_model(config), pilot_stops_at)
     diagram = builder.Build()
     duration = profile.duration if duration is None else duration
     simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate)

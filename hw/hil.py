@@ -2,11 +2,11 @@
 time, with the real-time runner's overrun reports and final safe command.
 
 The onboard side is a mission: one function per `--mission` that adds its systems to the builder
-on the vehicle's boundary ports and connects its command to the vehicle. `fly` and `land` are the
-very onboard functions the simulation uses (diagrams/fly.py `add_waypoint_onboard`,
-diagrams/landing.py `add_landing_onboard`), with the channel mocap (hw/channel_odometry.py) as
-their odometry; `hover` flies the scripted attitude/thrust profile (diagrams/hover.py) and needs no
-position estimate.
+on the vehicle's boundary ports and connects its command to the vehicle. They are the very onboard
+functions the simulation uses (diagrams/hover.py `add_pilot_onboard`, diagrams/fly.py
+`add_waypoint_onboard`, diagrams/landing.py `add_landing_onboard`); `fly` and `land` take the
+channel mocap (hw/channel_odometry.py) as their odometry; `hover` flies an open-loop
+attitude/thrust profile and needs no position estimate.
 """
 import dataclasses as dc
 from pathlib import Path
@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.run_log import RunLoggers, add_run_logging, write_run_folder
+from alight.diagrams.run_log import RunLoggers, write_run_folder
 from alight.hw.channel_odometry import channel_odometry
 from alight.hw.endpoint import LOG
 from alight.hw.frame_channel import FrameSubscriber
@@ -46,14 +46,11 @@ class Mission:
 
 def hover_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
                   odometry=None) -> Mission:
-    """The scripted hover pilot (open-loop attitude/thrust profile: take off, hover, land)."""
-    from alight.diagrams.hover import load_pilot_profile, pilot_model
-    from alight.systems.control.scripted_pilot import ScriptedPilot
+    """`alight hover`'s onboard side: the scripted pilot (open-loop attitude/thrust profile)."""
+    from alight.diagrams.hover import add_pilot_onboard, load_pilot_profile, pilot_model
     profile = load_pilot_profile(options.profile)
-    pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile,
-                                                          pilot_model(options.vehicle_config)))
-    builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    return Mission(add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command")),
+    return Mission(add_pilot_onboard(builder, vehicle, profile,
+                                     pilot_model(options.vehicle_config)),
                    profile.duration, metadata={"profile": options.profile})
 
 
