@@ -379,9 +379,13 @@ class AutopilotBridge(LeafSystem):
 
 
     def _publish_mocap(self, context):
-        sample = EstimateSample(np.array(self._mocap.Eval(context)))
-        if sample.valid and sample.stamp > self._mocap_stamp:
-            self._mocap_stamp = sample.stamp
+        value = self._mocap.Eval(context)
+        stamp = STATE_ESTIMATE.get(value, "stamp")
+        if not stamp > self._mocap_stamp:  # cheap when nothing is new (this runs every tick)
+            return
+        self._mocap_stamp = stamp
+        sample = EstimateSample(np.array(value))
+        if sample.valid:
             self._frames.publish("mocap", sample)
 
 
