@@ -389,11 +389,14 @@ def make_parser() -> argparse.ArgumentParser:
     track = sub.add_parser("track", help=COMMANDS["track"], description=COMMANDS["track"])
     _add_common(track)
     track.add_argument("--trajectory", choices=["circle", "steps", "hover"], default="circle")
-    track.add_argument("--controller", choices=["se3", "mpc"], default="se3")
+    track.add_argument("--controller", choices=["se3", "mpc", "linear_mpc"], default="se3",
+                       help="linear_mpc: the landing paper's MPC (attitude+thrust), for comparison")
     track.add_argument("--radius", type=float, default=5.0, help="circle radius [m]")
     track.add_argument("--speed", type=float, default=7.0, help="circle speed [m/s]")
     track.add_argument("--heading", choices=["center", "constant"], default="center")
-    track.add_argument("--laps", type=float, default=2.0, help="circle laps (the last is scored)")
+    track.add_argument("--laps", type=float, default=3.0,
+                       help="circle laps (the last is scored; the disturbance estimators learn "
+                            "the drag on the laps before)")
     track.add_argument("--estimator-noise", type=float, default=0.0, metavar="SIGMA",
                        help="white noise on the estimated position [m] and velocity [m/s]")
     track.add_argument("--estimator-jump", type=float, default=0.0, metavar="METRES",

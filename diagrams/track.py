@@ -4,7 +4,10 @@ controller, optionally under estimator noise (M Sec. 8.3) or an estimator jump (
 score the run against the simulation's ground truth.
 
 The diagram: simulated vehicle -> mocap odometry -> (fault injector) -> controllers, switched by a
-`TimedSwitch` (the control manager's stand-in) -> vehicle. The controllers also read the flight
+`TimedSwitch` (the control manager's stand-in) -> vehicle. `linear_mpc` is the landing paper's
+linear MPC (L Sec. 6.1-6.2, attitude+thrust at 20 Hz, `alight fly`'s controller) on the same
+reference (it reads chi's position, velocity and heading), armed through an `ArmGate` like in
+`alight fly`, for the side-by-side comparison. The controllers also read the flight
 controller's attitude `fc_attitude` for their orientation, as the paper's controllers use the
 Pixhawk's (M footnote 18): closing the attitude loop on the 30 ms old mocap orientation made it
 oscillate on the 7 m/s circle with the heading to the centre. The reference chi is analytic
@@ -16,10 +19,12 @@ from pathlib import Path
 import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import RandomSource
+from pydrake.systems.primitives import RandomSource, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
 
 from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
                                          make_controller)
+from alight.diagrams.fly import load_linear_model, load_linear_mpc
 from alight.diagrams.hover import default_run_dir
 from alight.diagrams.mocap import add_mocap
 from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
@@ -27,6 +32,8 @@ from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.diagrams.simulation import simulate
 from alight.systems.boundary import CONTROLLER_STATUS, GROUND_TRUTH, REFERENCE, STATE_ESTIMATE
 from alight.systems.control import analytic_reference as ref
+from alight.systems.control.arm_gate import ArmGate
+from alight.systems.control.linear_mpc import LinearMpc
 from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
 from alight.systems.control.timed_switch import TimedSwitch
 from alight.systems.params import bounded, choice
@@ -36,17 +43,18 @@ from alight.systems.sensors.estimate_faults import EstimateFaultParams, Estimate
 from alight.systems.sensors.mocap import MocapParams
 
 TRAJECTORIES = ("circle", "steps", "hover")
+TRACK_CONTROLLERS = ("se3", "mpc", "linear_mpc")
 
 
 @dc.dataclass
 class TrackExperiment:
     """One `alight track` experiment (the command line's options)."""
     trajectory: str = choice(*TRAJECTORIES)
-    controller: str = choice("se3", "mpc")
+    controller: str = choice(*TRACK_CONTROLLERS)
     radius: float = bounded(5.0, 0.5, 100.0, "m")        # circle, M Sec. 8.2
     speed: float = bounded(7.0, 0.1, 20.0, "m/s")
     heading: str = choice("center", "constant")
-    laps: float = bounded(2.0, 0.25, 100.0)
+    laps: float = bounded(3.0, 0.25, 100.0)             # the last is scored
     ramp: float = bounded(3.0, 0.5, 30.0, "s")           # circle's angular-speed ramp
     altitude: float = bounded(3.0, 0.5, 100.0, "m")
     climb_limits: list[float] = bounded([1.5, 1.5, 4.0], 0.1, 100.0)  # v, a, j of the take-off
@@ -129,6 +137,26 @@ class ControllerLoop:
     reference_port: object
 
 
+def make_track_controller(name: str, config: ControllersConfig):
+    """The flight-stack controllers by name (`make_controller`), or the landing paper's
+    `linear_mpc` with its parameters from models/linear_model.yaml and models/linear_mpc.yaml."""
+    if name == "linear_mpc":
+        return LinearMpc(load_linear_model(), load_linear_mpc())
+    return make_controller(name, config)
+
+
+def add_arm_gate(builder, command_port, name: str, idle: float = 0.5):
+    """An `ArmGate` on `command_port`: arm request from t = 0, thrust from `idle` s on (the
+    flight controller arms only at low thrust; the force controllers ramp up on their own)."""
+    gate = builder.AddNamedSystem(name, ArmGate())
+    arm = builder.AddNamedSystem(f"{name}_request", TrajectorySource(
+        PiecewisePolynomial.ZeroOrderHold([0.0, idle, idle + 1.0],
+                                          np.array([[1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]))))
+    builder.Connect(command_port, gate.GetInputPort("fc_command"))
+    builder.Connect(arm.get_output_port(), gate.GetInputPort("arm"))
+    return gate.GetOutputPort("fc_command")
+
+
 def add_faulty_mocap(builder, vehicle, period: float, faults: EstimateFaultParams | None = None,
                      mocap: MocapParams | None = None):
     """Mocap odometry of `vehicle` and, when `faults` is active, the fault injector after it:
@@ -159,7 +187,7 @@ def add_controller_loop(builder, vehicle_diagram, controllers_config: Controller
     controllers = {}
     for i, name in enumerate(names):
         controller = builder.AddNamedSystem(f"controller_{i}_{name}",
-                                            make_controller(name, controllers_config))
+                                            make_track_controller(name, controllers_config))
         builder.Connect(estimate, controller.GetInputPort("state_estimate"))
         builder.Connect(reference.GetOutputPort("reference"), controller.GetInputPort("reference"))
         builder.Connect(switch.GetOutputPort(f"active_{i}"), controller.GetInputPort("active"))
@@ -167,8 +195,10 @@ def add_controller_loop(builder, vehicle_diagram, controllers_config: Controller
         if controller.HasInputPort("fc_attitude"):
             builder.Connect(vehicle.GetOutputPort("fc_attitude"),
                             controller.GetInputPort("fc_attitude"))
-        builder.Connect(controller.GetOutputPort("fc_command"),
-                        switch.GetInputPort(f"fc_command_{i}"))
+        command = controller.GetOutputPort("fc_command")
+        if name == "linear_mpc":
+            command = add_arm_gate(builder, command, f"arm_gate_{i}")
+        builder.Connect(command, switch.GetInputPort(f"fc_command_{i}"))
         controllers[f"{i}_{name}"] = controller
     builder.Connect(switch.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     return ControllerLoop(vehicle, controllers, switch, estimate, mocap_port,
@@ -280,5 +310,43 @@ def score(run: RunLog, start: float | None = None, end: float | None = None) -> 
                       float(heading_error.mean()), (float(start), float(end)))
 
 
-__all__ = ["CONTROLLERS", "TrackExperiment", "fly_track", "score", "make_trajectory",
+def section8_experiments(controller: str, short: bool = False) -> dict[str, TrackExperiment]:
+    """The M Sec. 8 experiments for `controller`: steps (8.1, Fig. 7), the 5 m circle at 7 m/s
+    with the heading to the centre (8.2, Fig. 9), 1 m estimator noise (8.3, Fig. 12) and a 5 m
+    estimator jump (8.4, Fig. 13) in hover. `short`: cut down for the test suite (one 2 m step,
+    half a lap, 2 s of hover), with the same speeds and faults."""
+    common = dict(controller=controller, altitude=1.5, settle=1.0)
+    hover = dict(trajectory="hover", hover_time=2.0 if short else 10.0, **common)
+    return {
+        "steps": TrackExperiment(trajectory="steps", step_sizes=[2.0] if short else [1.0, 2.0, 4.0],
+                                 step_hold=1.5 if short else 3.0, **common),
+        "circle": TrackExperiment(trajectory="circle", radius=5.0, speed=7.0, heading="center",
+                                  laps=0.5 if short else 3.0, ramp=2.0, **common),
+        "noise 1 m": TrackExperiment(estimator_noise=1.0, **hover),
+        "jump 5 m": TrackExperiment(estimator_jump=5.0, jump_delay=0.3 if short else 2.0, **hover),
+    }
+
+
+def compare_controllers(vehicle_config: SimVehicleConfig, controllers, root, seed: int = 7,
+                        short: bool = False):
+    """Flies `section8_experiments` for each controller (run folders under `root`) and scores
+    them over the experiment (the hover ones to the end of the run): ({(experiment,
+    controller): RunLog}, pandas DataFrame of the `TrackScore`s, one row per run)."""
+    import pandas as pd
+    runs, rows = {}, []
+    for controller in controllers:
+        for name, experiment in section8_experiments(controller, short).items():
+            run = fly_track(vehicle_config, experiment, seed=seed, plots=False,
+                            run_dir=Path(root) / f"{name.split()[0]}-{controller}")
+            end = run["ground_truth"]["time"].iloc[-1] if experiment.trajectory == "hover" \
+                else None
+            result = score(run, end=end)
+            runs[name, controller] = run
+            rows.append({"experiment": name, "controller": controller,
+                         **{k: v for k, v in dc.asdict(result).items() if k != "window"}})
+    return runs, pd.DataFrame(rows).set_index(["experiment", "controller"])
+
+
+__all__ = ["CONTROLLERS", "TRACK_CONTROLLERS", "TrackExperiment", "fly_track", "score",
+           "section8_experiments", "compare_controllers", "make_trajectory",
            "add_controller_loop"]
