@@ -56,7 +56,7 @@ from alight.systems.control.disturbance import (DISTURBANCE, DISTURBANCE_ESTIMAT
                                                 DisturbanceGains, DisturbanceLimits)
 from alight.systems.control.so3 import (E3, So3Params, body_rate_command, desired_orientation,
                                         jerk_feedforward, limit_tilt)
-from alight.systems.estimation.heading import with_heading
+from alight.systems.estimation.heading import with_heading, wrap_angle
 from alight.systems.params import bounded
 from alight.systems.rotations import (heading, heading_quaternion, quaternion_from_rotation_vector,
                                       quaternion_product, rotation_matrix)
@@ -118,8 +118,8 @@ def advance_reference(reference: np.ndarray, dt: float) -> np.ndarray:
     p, v, a, j = (L.get(reference, k) for k in ("p", "v", "a", "j"))
     return L.pack(stamp=L.get(reference, "stamp") + dt,
                   p=p + v * dt + a * dt ** 2 / 2 + j * dt ** 3 / 6, v=v + a * dt + j * dt ** 2 / 2,
-                  a=a + j * dt, j=j, heading=L.get(reference, "heading")
-                  + L.get(reference, "heading_rate") * dt,
+                  a=a + j * dt, j=j, heading=float(wrap_angle(
+                      L.get(reference, "heading") + L.get(reference, "heading_rate") * dt)),
                   heading_rate=L.get(reference, "heading_rate"))
 
 
