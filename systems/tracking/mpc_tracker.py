@@ -1,0 +1,275 @@
+"""The MPC tracker, M Sec. 4.1: a linear MPC drives a virtual vehicle, whose state is the
+full-state reference chi of M(16), at 100 Hz, from a point or a sampled trajectory goal.
+
+The axes x, y, z and the heading are four independent QPs (`AxisMpc`, a snap-driven chain of
+integrators under one constraint group of M Sec. 7.5). Each axis re-plans every grid step h
+(10 ticks at the defaults), the axes staggered by one tick so that a tick solves at most one QP;
+between its solves an axis plays its plan exactly, so a goal change is taken up within h.
+The horizontal limits bound the norm of the x-y derivatives: each of x and y gets the limit
+times its share of a direction per derivative (`horizontal_factors`), exact on straight lines.
+Far goals are pulled to `lookahead` x speed x horizon of the vehicle per axis (the plan cannot get
+further within the horizon anyway; it keeps the QP's errors, and OSQP's iterations, small).
+"""
+import dataclasses as dc
+import enum
+import time
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from alight.models import model_path
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
+from alight.systems.params import ConfigError, bounded, load_params
+from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.tracking.axis_mpc import (ORDER, AxisLimits, AxisMpc, AxisMpcParams, chain,
+                                              horizontal_factors)
+from alight.systems.tracking.constraints import ConstraintGroups, load_constraint_groups
+from alight.systems.tracking.goal import TrackerGoal
+
+AXES = 4          # x, y, z, heading
+
+
+@dc.dataclass
+class MpcTrackerParams:
+    period: float = bounded(0.01, 0.001, 0.1, "s")          # 100 Hz, M Sec. 4.1
+    axis: AxisMpcParams = dc.field(default_factory=AxisMpcParams)
+    direction_time: float = bounded(1.0, 0.01, 100.0, "s")  # position error -> velocity asked
+    share_floor: float = bounded(0.1, 0.0, 0.3)             # least share of a horizontal limit
+    lookahead: float = bounded(0.5, 0.1, 10.0)              # far goals pulled in (x V N h)
+    constraints: str = "medium"                             # default group (M Sec. 7.5)
+    constraints_file: str = "constraints.yaml"
+
+
+class TrackerReason(enum.IntEnum):
+    """`tracker_status.reason`."""
+    OK = 0
+    INACTIVE = 1
+    NO_GOAL = 2          # active without a goal: holds the goal of the start (the start state)
+    SOLVER_FAILED = 3    # a QP failed: the axis plays on its previous plan (still valid)
+    BAD_START = 4        # cannot start: no finite last reference and no valid estimate
+
+
+@dc.dataclass
+class TrackerMemory:
+    """Abstract state: the virtual vehicle x (axes x derivatives p, v, a, j), each axis' plan
+    (snaps, planned positions, ticks since its solve), the goal held without one, bookkeeping."""
+    x: np.ndarray
+    snaps: np.ndarray        # (AXES, N)
+    planned: np.ndarray      # (AXES, N + 1) positions of the last plan
+    age: np.ndarray          # (AXES,) ticks since each axis' last solve
+    hold: np.ndarray         # (4,) the goal [x, y, z, heading] used when none is given
+    direction: np.ndarray    # (2,) last horizontal direction
+    active: bool = False
+    frame_counter: float = np.nan
+    ticks: int = 0
+
+    @staticmethod
+    def empty(N: int) -> "TrackerMemory":
+        return TrackerMemory(np.zeros((AXES, ORDER)), np.zeros((AXES, N)),
+                             np.zeros((AXES, N + 1)), np.zeros(AXES, int), np.zeros(4),
+                             np.array([1.0, 1.0]) / np.sqrt(2))
+
+
+class MpcTracker(LeafSystem):
+    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` TrackerGoal (abstract; None: hold);
+            `active` (1); `last_reference` REFERENCE; `constraint_group` (1, optional: index
+            into `group_names`; unconnected: the default group)
+    Outputs `reference` REFERENCE (chi of M(16) in E, stamped one period ahead),
+            `tracker_status` TRACKER_STATUS (compute_time: this tick's QP time [s])
+    On activation the virtual vehicle starts from `last_reference` when it is finite (M Sec. 7.2),
+    else at rest at the state estimate.
+    """
+
+    def __init__(self, params: MpcTrackerParams, groups: ConstraintGroups):
+        super().__init__()
+        ratio = params.axis.step / params.period
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < AXES:
+            raise ConfigError(f"mpc tracker: axis.step {params.axis.step} s must be a whole "
+                              f"number (>= {AXES}) of periods {params.period} s")
+        self.params, self.groups = params, groups
+        self.group_names = sorted(groups.groups)
+        groups.group(params.constraints)          # refuses an unknown default group
+        self.every = int(round(ratio))
+        self.N = params.axis.horizon
+        self.times = params.axis.step * np.arange(1, self.N + 1)
+        self.qps = [AxisMpc(params.axis) for _ in range(AXES)]
+        A, B = chain(params.period)
+        self._A, self._B = A, B[:, 0]
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._goal = self.DeclareAbstractInputPort("goal", AbstractValue.Make(None))
+        self._active = self.DeclareVectorInputPort("active", 1)
+        self._last = self.DeclareVectorInputPort("last_reference", REFERENCE.size)
+        self._group = self.DeclareVectorInputPort("constraint_group", 1)
+        self._memory = self.DeclareAbstractState(AbstractValue.Make(TrackerMemory.empty(self.N)))
+        self._reference = self.DeclareDiscreteState(np.full(REFERENCE.size, np.nan))
+        self._status = self.DeclareDiscreteState(TRACKER_STATUS.pack(
+            valid=0.0, reason=TrackerReason.INACTIVE, compute_time=0.0, solver_status=0.0))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareVectorOutputPort(
+            "reference", REFERENCE.size, self._calc_reference,
+            {self.all_state_ticket(), self.input_port_ticket(self._estimate.get_index())})
+        self.DeclareStateOutputPort("tracker_status", self._status)
+
+    def _group_limits(self, context):
+        name = self.params.constraints
+        if self._group.HasValue(context):
+            index = self._group.Eval(context)[0]
+            if np.isfinite(index) and 0 <= int(index) < len(self.group_names):
+                name = self.group_names[int(index)]
+        return self.groups.group(name)
+
+    def _calc_reference(self, context, output):
+        reference = context.get_discrete_state(self._reference).get_value()
+        if np.all(np.isfinite(reference)):
+            return output.SetFromVector(reference)
+        estimate = self._estimate.Eval(context)   # never computed: hold the estimate
+        output.SetFromVector(REFERENCE.pack(
+            stamp=context.get_time(), p=STATE_ESTIMATE.get(estimate, "p_EB"), v=0.0, a=0.0,
+            j=0.0, heading=STATE_ESTIMATE.get(estimate, "heading"), heading_rate=0.0))
+
+    def _start(self, context, memory: TrackerMemory) -> bool:
+        last = self._last.Eval(context)
+        x = np.zeros((AXES, ORDER))
+        if np.all(np.isfinite(last)):
+            x[:3] = np.column_stack([REFERENCE.get(last, f) for f in ("p", "v", "a", "j")])
+            x[3, :2] = REFERENCE.get(last, "heading"), REFERENCE.get(last, "heading_rate")
+        else:
+            estimate = self._estimate.Eval(context)
+            if STATE_ESTIMATE.get(estimate, "valid") < 0.5 or not np.all(np.isfinite(estimate)):
+                return False
+            x[:3, 0] = STATE_ESTIMATE.get(estimate, "p_EB")
+            x[3, 0] = STATE_ESTIMATE.get(estimate, "heading")
+        memory.x, memory.hold = x, x[:, 0].copy()
+        memory.snaps[:], memory.planned[:] = 0.0, x[:, :1]
+        memory.age[:] = 0
+        memory.active, memory.ticks = True, 0
+        return True
+
+    def _update(self, context, state):
+        memory = state.get_mutable_abstract_state(int(self._memory)).get_value()
+        if self._active.Eval(context)[0] < 0.5:
+            memory.active = False
+            state.get_mutable_discrete_state(int(self._reference)).SetFromVector(
+                self._last.Eval(context))
+            return self._set_status(state, 0.0, TrackerReason.INACTIVE, 0.0, 0)
+        estimate = self._estimate.Eval(context)
+        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
+        started = False
+        if not memory.active:
+            if not self._start(context, memory):
+                return self._set_status(state, 0.0, TrackerReason.BAD_START, 0.0, 0)
+            started = True
+        elif np.isfinite(memory.frame_counter) and np.isfinite(counter) \
+                and counter != memory.frame_counter:
+            reexpress(memory, rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew")),
+                      STATE_ESTIMATE.get(estimate, "p_OldNew"))
+        memory.frame_counter = counter
+        goal = self._goal.Eval(context)
+        reason = TrackerReason.OK if goal is not None else TrackerReason.NO_GOAL
+        due = range(AXES) if started else [a for a in range(AXES)
+                                           if memory.ticks % self.every == a]
+        start, solver_status = time.perf_counter(), 0
+        if due:
+            ok, solver_status = self._replan(memory, list(due), goal, context)
+            reason = reason if ok else TrackerReason.SOLVER_FAILED
+        compute_time = time.perf_counter() - start
+        self._advance(memory)
+        now = context.get_time()
+        x = memory.x
+        state.get_mutable_discrete_state(int(self._reference)).SetFromVector(REFERENCE.pack(
+            stamp=now + self.params.period, p=x[:3, 0], v=x[:3, 1], a=x[:3, 2], j=x[:3, 3],
+            heading=float(np.angle(np.exp(1j * x[3, 0]))), heading_rate=x[3, 1]))
+        self._set_status(state, 1.0, reason, compute_time, solver_status)
+
+    def _set_status(self, state, valid, reason, compute_time, solver_status):
+        state.get_mutable_discrete_state(int(self._status)).SetFromVector(TRACKER_STATUS.pack(
+            valid=valid, reason=reason, compute_time=compute_time, solver_status=solver_status))
+
+    def _goal_rows(self, memory: TrackerMemory, goal, now: float) -> np.ndarray:
+        """(4 axes, 2, N): goal positions and velocities at the horizon's times."""
+        if goal is not None and not isinstance(goal, TrackerGoal):
+            raise TypeError(f"mpc tracker: the goal must be a TrackerGoal or None, got "
+                            f"{type(goal).__name__}")
+        rows = goal.sample(now + self.times) if goal is not None \
+            else np.tile(memory.hold, (self.N, 1))
+        rows[:, 3] += 2 * np.pi * np.round((memory.x[3, 0] - rows[0, 3]) / (2 * np.pi))
+        velocities = np.gradient(rows, self.params.axis.step, axis=0) if goal is not None \
+            and len(goal.samples) > 1 else np.zeros_like(rows)
+        return np.stack([rows.T, velocities.T], axis=1)
+
+    def _replan(self, memory: TrackerMemory, axes: list[int], goal, context):
+        group = self._group_limits(context)
+        rows = self._goal_rows(memory, goal, context.get_time())
+        limits = self._limits(memory, group, rows)
+        speeds = [group.horizontal.speed] * 2 + [
+            max(group.ascending.speed, group.descending.speed), group.heading.speed]
+        ok, status = True, 0
+        for a in axes:
+            reach = self.params.lookahead * speeds[a] * self.times[-1]
+            target = rows[a].copy()
+            target[0] = memory.x[a, 0] + np.clip(target[0] - memory.x[a, 0], -reach, reach)
+            qp = self.qps[a]
+            qp.update(memory.x[a], target, limits[a])
+            solved, snaps, states, status, _ = qp.solve()
+            if solved and np.all(np.isfinite(snaps)):
+                memory.snaps[a], memory.planned[a], memory.age[a] = snaps, states[:, 0], 0
+            else:
+                ok = False
+        return ok, status
+
+    def _limits(self, memory: TrackerMemory, group, rows: np.ndarray) -> list[AxisLimits]:
+        """Per-axis bounds (M Sec. 7.5): horizontal shares, ascent/descent, heading."""
+        h = group.horizontal.as_array()
+        planned = np.array([self._planned_positions(memory, a) for a in range(2)]).T
+        w = rows[:2, 1].T + (rows[:2, 0].T - planned) / self.params.direction_time
+        shares = horizontal_factors(w, self.params.axis.step, memory.direction,
+                                    self.params.share_floor, 0.01 * h)
+        if np.linalg.norm(w[0]) > 0.01 * h[0]:
+            memory.direction = w[0] / np.linalg.norm(w[0])
+        horizontal = [AxisLimits(h[:, None] * shares[:, :, a], h[:, None] * shares[:, :, a])
+                      for a in range(2)]
+        vertical = AxisLimits(group.ascending.as_array()[:, None],
+                              group.descending.as_array()[:, None])
+        eta = group.heading.as_array()[:, None]
+        return horizontal + [vertical, AxisLimits(eta, eta)]
+
+    def _planned_positions(self, memory: TrackerMemory, a: int) -> np.ndarray:
+        """Axis a's last plan at the horizon's times from now (held after its end)."""
+        plan_times = self.params.axis.step * np.arange(self.N + 1)
+        return np.interp(self.times + memory.age[a] * self.params.period, plan_times,
+                         memory.planned[a])
+
+    def _advance(self, memory: TrackerMemory) -> None:
+        """One period of every axis with its plan's current snap (0 after the plan's end)."""
+        for a in range(AXES):
+            k = memory.age[a] // self.every
+            snap = memory.snaps[a, k] if k < self.N else 0.0
+            memory.x[a] = self._A @ memory.x[a] + self._B * snap
+        memory.age += 1
+        memory.ticks += 1
+
+
+def reexpress(memory: TrackerMemory, R_OldNew: np.ndarray, p_OldNew: np.ndarray) -> None:
+    """The virtual vehicle and its plans in the new estimator frame (M Sec. 3.5): positions
+    p_new = R^T (p_old - p_OldNew), derivatives and snaps rotated, heading minus the yaw."""
+    x = memory.x
+    x[:3] = R_OldNew.T @ x[:3]
+    x[:3, 0] -= R_OldNew.T @ p_OldNew
+    memory.snaps[:3] = R_OldNew.T @ memory.snaps[:3]
+    memory.planned[:3] = R_OldNew.T @ (memory.planned[:3] - p_OldNew[:, None])
+    yaw = heading(R_OldNew)
+    x[3, 0] -= yaw
+    memory.planned[3] -= yaw
+    memory.hold[:3] = R_OldNew.T @ (memory.hold[:3] - p_OldNew)
+    memory.hold[3] -= yaw
+
+
+def load_mpc_tracker_params(filename: str = "mpc_tracker.yaml") -> MpcTrackerParams:
+    """A path, or a file name in models/; raises ConfigError naming the file and the key."""
+    return load_params(MpcTrackerParams, model_path(filename))
+
+
+def make_mpc_tracker(params: MpcTrackerParams | None = None) -> MpcTracker:
+    params = params or load_mpc_tracker_params()
+    return MpcTracker(params, load_constraint_groups(params.constraints_file))
