@@ -296,3 +296,84 @@ def test_a_controller_takes_over_the_previous_ones_disturbance_estimates():
     Simulator(dut, context).AdvanceTo(0.005)
     np.testing.assert_allclose(dut.GetOutputPort("disturbance_estimate").Eval(context), handed,
                                atol=1e-9)
+
+
+class TrackerBench(Bench):
+    """The manager with two trackers (fixed references) and the `arm` input connected."""
+
+    TRACKERS = ["mpc_tracker", "landoff"]
+
+    def __init__(self):
+        self.dut = ControlManager(NAMES, "se3", "failsafe", "se3", AREA, EmergencyParams(),
+                                  VEHICLE, 0.01, trackers=self.TRACKERS,
+                                  initial_tracker="landoff")
+        self.context = self.dut.CreateDefaultContext()
+        self.simulator = Simulator(self.dut, self.context)
+        self.set(state_estimate=estimate([1.0, 2.0, 0.2]), switch_request=[0, 0],
+                 tracker_request=[0, 0], arm=[0.0])
+        for i in range(len(NAMES)):
+            self.command(i, HOVER_THRUST + 0.01 * i)
+            self.set(**{f"controller_status_{i}": status_vector(ControllerReason.OK)})
+        for k, z in enumerate((2.0, 1.0)):
+            self.set(**{f"tracker_reference_{k}": goal([1.0, 2.0, z]),
+                        f"tracker_status_{k}": status_vector(ControllerReason.OK)})
+
+    def trackers_active(self):
+        return [int(self.output(f"tracker_active_{k}")[0]) for k in range(2)]
+
+
+def test_disarmed_manager_sends_zero_thrust_and_arming_starts_the_initial_pair():
+    bench = TrackerBench()
+    bench.run(0.1)
+    command = bench.output("fc_command")
+    assert bench.status("mode") == ManagerMode.DISARMED
+    assert FC_COMMAND.get(command, "arm") == 0.0 and FC_COMMAND.get(command, "thrust") == 0.0
+    assert bench.active() == [0, 0, 0] and bench.trackers_active() == [0, 0]
+    # The reference rests at the estimate, so that a tracker starts from the vehicle.
+    assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.0, 2.0, 0.2])
+    bench.set(tracker_request=[1, 0])       # selectable while disarmed: used on arming
+    bench.run(0.02)
+    assert bench.status("tracker") == 0 and bench.trackers_active() == [0, 0]
+    bench.set(arm=[1.0])
+    # At the arming tick the initial controller and the selected tracker compute, the
+    # controller reading the disarmed command as its last command (it spools up from zero).
+    assert bench.active() == [1, 0, 0] and bench.trackers_active() == [1, 0]
+    assert FC_COMMAND.get(bench.output("fc_command"), "thrust") == 0.0
+    bench.run(0.02)
+    assert bench.status("mode") == ManagerMode.NORMAL
+    assert FC_COMMAND.get(bench.output("fc_command"), "thrust") == pytest.approx(HOVER_THRUST)
+    assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.0, 2.0, 2.0])
+    bench.set(arm=[0.0])                     # disarm (after landing): zero thrust at once
+    bench.run(0.01)
+    assert bench.status("mode") == ManagerMode.DISARMED
+    assert FC_COMMAND.get(bench.output("fc_command"), "thrust") == 0.0
+
+
+def test_tracker_switch_is_taken_at_the_tick_and_a_failed_tracker_holds():
+    bench = TrackerBench()
+    bench.set(arm=[1.0])
+    bench.run(0.05)
+    assert bench.trackers_active() == [0, 1]
+    assert REFERENCE.get(bench.output("reference"), "p")[2] == pytest.approx(1.0)
+    bench.set(tracker_request=[1, 0])
+    assert bench.trackers_active() == [1, 0]   # the new one computes at this tick ...
+    bench.run(0.02)                            # ... and its reference is followed after it
+    assert REFERENCE.get(bench.output("reference"), "p")[2] == pytest.approx(2.0)
+    assert bench.status("tracker_switches") == 1
+    bench.set(tracker_request=[2, 5])          # no tracker 5: refused, nothing changes
+    bench.run(0.02)
+    assert bench.status("refusal") == Refusal.UNKNOWN_TRACKER and bench.trackers_active() == [1, 0]
+    bench.set(tracker_status_0=status_vector(ControllerReason.BAD_ESTIMATE),
+              tracker_reference_0=goal([3.0, 2.0, 2.0]))
+    bench.run(0.02)                            # cannot produce a reference: the vehicle holds
+    assert bench.status("refusal") == Refusal.TRACKER_FAILED and bench.status("held") == 1
+    assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.0, 2.0, 2.0])
+    bad = goal([1.0, 2.0, 2.0])
+    bad[REFERENCE.slice("v")] = np.nan
+    bench.set(tracker_status_0=status_vector(ControllerReason.OK), tracker_reference_0=bad)
+    bench.run(0.02)
+    assert np.all(np.isfinite(bench.output("reference"))) and bench.status("held") == 1
+    bench.set(tracker_reference_0=goal([1.2, 2.0, 2.0]))   # usable again, near the hold point
+    bench.run(0.02)
+    assert bench.status("held") == 0
+    assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.2, 2.0, 2.0])

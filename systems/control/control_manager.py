@@ -35,6 +35,21 @@ position (zero velocity, acceleration, jerk; heading kept) until the goal comes 
 
 Estimator frame changes (frame_counter, M Sec. 3.5): the hold point, the emergency landing's start
 and the last issued reference are re-expressed in the new frame. The safety area is given in E.
+
+Trackers (M Sec. 4 and 7.2; optional, `trackers` given to the constructor): the goal chi is then
+the active tracker's `reference` instead of the `goal` input. Trackers follow the tracker contract
+of alight.systems.boundary; they switch like controllers (`tracker_request` [id, index]), only the
+active one computes (`tracker_active_i`), and it starts from the manager's `reference` (their
+`last_reference`). A tracker whose status says it cannot produce a reference (valid 0 for any
+reason but INACTIVE = 1) or whose reference is not finite makes the manager hold, like a goal
+outside the safety area. Outside NORMAL mode no tracker is active.
+
+Arming (optional `arm` input, 1 value; unconnected means armed from the start): while it is 0 the
+manager is DISARMED: no controller or tracker is active, the command is level with zero thrust
+and arm 0, the reference holds the estimate; when it turns 1 the manager arms in NORMAL mode with
+the selected controller and tracker, which start from that disarmed command and that reference
+(the controller spools up from zero thrust). A disarm request is obeyed in any mode (the UAV
+manager sends one only once landed).
 """
 import dataclasses as dc
 import enum
@@ -43,7 +58,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
-                                     VectorLayout)
+                                     TRACKER_STATUS, VectorLayout)
 from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
 from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
                                                      command_is_usable, level_command)
@@ -56,6 +71,7 @@ class ManagerMode(enum.IntEnum):
     ELAND = 1      # emergency landing on the emergency controller
     FAILSAFE = 2   # the feedforward failsafe controller
     LANDED = 3     # touched down after the emergency landing: disarmed
+    DISARMED = 4   # the `arm` input is 0: nothing active, zero thrust
 
 
 class Refusal(enum.IntEnum):
@@ -67,6 +83,8 @@ class Refusal(enum.IntEnum):
     NOT_FINITE = 4
     UNKNOWN_CONTROLLER = 5    # switch request to an index not in the list
     NOT_IN_NORMAL_MODE = 6    # switch request during ELAND / FAILSAFE / LANDED
+    UNKNOWN_TRACKER = 7       # tracker switch request to an index not in the list
+    TRACKER_FAILED = 8        # the active tracker cannot produce a reference: holding
 
 
 class FailsafeCause(enum.IntEnum):
@@ -78,10 +96,12 @@ class FailsafeCause(enum.IntEnum):
 
 # `manager_status`: index of the active controller; ManagerMode; Refusal of the last refused goal
 # sample or switch request; held (1 while the safety area holds the vehicle); the control error
-# |p_ref - p_EB| [m]; FailsafeCause; the number of controller switches so far.
+# |p_ref - p_EB| [m]; FailsafeCause; the number of controller switches so far; index of the active
+# tracker (-1 without trackers) and the number of tracker switches.
 MANAGER_STATUS = VectorLayout("manager_status", [
     ("active", 1), ("mode", 1), ("refusal", 1), ("held", 1), ("control_error", 1),
-    ("failsafe_cause", 1), ("switches", 1)])
+    ("failsafe_cause", 1), ("switches", 1), ("tracker", 1), ("tracker_switches", 1)],
+    defaults={"tracker": -1.0, "tracker_switches": 0.0})
 
 
 @dc.dataclass
@@ -146,7 +166,8 @@ _STATE = VectorLayout("control_manager_state", [
     ("held", 1), ("hold_p", 3), ("hold_heading", 1), ("eland_start", 1), ("eland_p", 3),
     ("eland_heading", 1), ("quiet_time", 1), ("issued_p", 3), ("issued_heading", 1),
     ("frame_counter", 1), ("active_since", 1), ("failsafe_cause", 1), ("switches", 1),
-    ("control_error", 1), ("estimate_seen", 1)])
+    ("control_error", 1), ("estimate_seen", 1), ("tracker", 1), ("tracker_request_id", 1),
+    ("tracker_switches", 1), ("tracker_since", 1)])
 
 
 @dc.dataclass
@@ -157,39 +178,52 @@ class _Decision:
 
 
 class ControlManager(LeafSystem):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` REFERENCE (chi from the active tracker, in
-            E); `switch_request` (2) [request id, controller index] (optional: unconnected means
-            no requests); per controller i (in the order of `names`): `fc_command_i` FC_COMMAND,
+    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` REFERENCE (chi in E; only without
+            trackers); `switch_request` (2) [request id, controller index] (optional:
+            unconnected means no requests); `arm` (1, optional: unconnected means armed); per
+            controller i (in the order of `names`): `fc_command_i` FC_COMMAND,
             `controller_status_i` CONTROLLER_STATUS, `disturbance_estimate_i`
-            DISTURBANCE_ESTIMATE (optional, for controllers that estimate disturbances M(35)-(37))
+            DISTURBANCE_ESTIMATE (optional, for controllers that estimate disturbances M(35)-(37));
+            with trackers, `tracker_request` (2) [request id, tracker index] (optional) and per
+            tracker k: `tracker_reference_k` REFERENCE, `tracker_status_k` TRACKER_STATUS
     Outputs `fc_command` FC_COMMAND (the active controller's command: the vehicle's command and
             every controller's `last_command`); `last_disturbance` DISTURBANCE_ESTIMATE (the
             active controller's, NaN when it has none: the next one takes them over);
-            `reference` REFERENCE (what the controllers track: the goal, the safety hold or the
-            emergency descent); `active_i` (1) per controller; `manager_status` MANAGER_STATUS
-    Updated every `period` (100 Hz by default), together with the controllers.
+            `reference` REFERENCE (what the controllers track and every tracker's
+            `last_reference`: the goal, the safety hold or the emergency descent); `active_i` (1)
+            per controller; with trackers `tracker_active_k` (1) per tracker; `manager_status`
+            MANAGER_STATUS
+    Updated every `period` (100 Hz by default), together with the controllers and trackers.
     """
 
     def __init__(self, names: list[str], initial: str, failsafe: str, emergency: str,
                  safety_area: SafetyArea, emergency_params: EmergencyParams,
                  vehicle: VehicleModel, period: float = 0.01,
-                 schedule: list[tuple[float, str]] | None = None):
+                 schedule: list[tuple[float, str]] | None = None,
+                 trackers: list[str] | None = None, initial_tracker: str | None = None):
         super().__init__()
         self.names = list(names)
+        self.trackers = list(trackers or [])
         for role, name in (("initial", initial), ("failsafe", failsafe),
                            ("emergency", emergency)):
             if name not in self.names:
                 raise ValueError(f"{role} controller {name!r} is not in the list {self.names}")
         self._initial, self._failsafe = self.index(initial), self.index(failsafe)
         self._emergency = self.index(emergency)
+        initial_tracker = initial_tracker or (self.trackers[0] if self.trackers else None)
+        if self.trackers and initial_tracker not in self.trackers:
+            raise ValueError(f"initial tracker {initial_tracker!r} is not in the list "
+                             f"{self.trackers}")
         safety_area.validate()
         self._area, self._e, self._vehicle, self._period = (safety_area, emergency_params,
                                                             vehicle, period)
         schedule = sorted(schedule or [], key=lambda item: item[0])
         self._schedule = [(float(t), self.index(name)) for t, name in schedule]
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
-        self._goal = self.DeclareVectorInputPort("goal", REFERENCE.size)
+        self._goal = None if self.trackers else \
+            self.DeclareVectorInputPort("goal", REFERENCE.size)
         self._request = self.DeclareVectorInputPort("switch_request", 2)
+        self._arm = self.DeclareVectorInputPort("arm", 1)
         self._commands = [self.DeclareVectorInputPort(f"fc_command_{i}", FC_COMMAND.size)
                           for i in range(len(names))]
         self._statuses = [self.DeclareVectorInputPort(f"controller_status_{i}",
@@ -198,18 +232,26 @@ class ControlManager(LeafSystem):
         self._disturbances = [self.DeclareVectorInputPort(f"disturbance_estimate_{i}",
                                                           DISTURBANCE_ESTIMATE.size)
                               for i in range(len(names))]
+        self._tracker_request = self.DeclareVectorInputPort("tracker_request", 2) \
+            if self.trackers else None
+        self._tracker_references = [self.DeclareVectorInputPort(
+            f"tracker_reference_{k}", REFERENCE.size) for k in range(len(self.trackers))]
+        self._tracker_statuses = [self.DeclareVectorInputPort(
+            f"tracker_status_{k}", TRACKER_STATUS.size) for k in range(len(self.trackers))]
         x0 = _STATE.pack(active=self._initial, mode=ManagerMode.NORMAL, request_id=0,
                          next_scheduled=0, refusal=Refusal.NONE, held=0, hold_p=np.zeros(3),
                          hold_heading=0, eland_start=0, eland_p=np.zeros(3), eland_heading=0,
                          quiet_time=0, issued_p=np.zeros(3), issued_heading=0,
                          frame_counter=np.nan, active_since=0.0, failsafe_cause=0, switches=0,
-                         control_error=0, estimate_seen=0)
+                         control_error=0, estimate_seen=0,
+                         tracker=self.trackers.index(initial_tracker) if self.trackers else -1,
+                         tracker_request_id=0, tracker_switches=0, tracker_since=0.0)
         self._state = self.DeclareDiscreteState(x0)
         self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
         self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
-                                     {self.all_input_ports_ticket(), self.all_state_ticket()})
+                                     everything)
         self.DeclareVectorOutputPort("last_disturbance", DISTURBANCE_ESTIMATE.size,
                                      self._calc_disturbance,
                                      {self.all_input_ports_ticket(), self.all_state_ticket()})
@@ -219,6 +261,10 @@ class ControlManager(LeafSystem):
             self.DeclareVectorOutputPort(
                 f"active_{i}", 1, lambda context, output, i=i: output.SetFromVector(
                     [float(self._active_after(context) == i)]), everything)
+        for k in range(len(self.trackers)):
+            self.DeclareVectorOutputPort(
+                f"tracker_active_{k}", 1, lambda context, output, k=k: output.SetFromVector(
+                    [float(self._tracker_after(context) == k)]), everything)
         self.DeclareVectorOutputPort("manager_status", MANAGER_STATUS.size, self._calc_status,
                                      {self.all_state_ticket()})
 
@@ -227,12 +273,19 @@ class ControlManager(LeafSystem):
             raise ValueError(f"unknown controller {name!r}: expected one of {self.names}")
         return self.names.index(name)
 
+    def tracker_index(self, name: str) -> int:
+        if name not in self.trackers:
+            raise ValueError(f"unknown tracker {name!r}: expected one of {self.trackers}")
+        return self.trackers.index(name)
+
     # --- outputs ------------------------------------------------------------------------------
 
     def _calc_command(self, context, output):
         x = context.get_discrete_state(self._state).get_value()
-        if x[_STATE.slice("mode")][0] == ManagerMode.LANDED:
-            eta = x[_STATE.slice("eland_heading")][0]
+        mode = _STATE.get(x, "mode")
+        if mode in (ManagerMode.LANDED, ManagerMode.DISARMED):
+            eta = x[_STATE.slice("eland_heading" if mode == ManagerMode.LANDED
+                                 else "issued_heading")][0]
             return output.SetFromVector(level_command(context.get_time(), eta, 0.0, 0.0))
         command = self._commands[int(x[_STATE.slice("active")][0])].Eval(context)
         if not command_is_usable(command):   # never forward a NaN; the failsafe takes over next
@@ -254,16 +307,32 @@ class ControlManager(LeafSystem):
         output.SetFromVector(MANAGER_STATUS.pack(
             active=S.get(x, "active"), mode=S.get(x, "mode"), refusal=S.get(x, "refusal"),
             held=S.get(x, "held"), control_error=S.get(x, "control_error"),
-            failsafe_cause=S.get(x, "failsafe_cause"), switches=S.get(x, "switches")))
+            failsafe_cause=S.get(x, "failsafe_cause"), switches=S.get(x, "switches"),
+            tracker=S.get(x, "tracker"), tracker_switches=S.get(x, "tracker_switches")))
 
     def _active_after(self, context) -> int:
-        return int(self._decide(context).x[_STATE.slice("active")][0])
+        """The controller that computes at this tick (-1: none, disarmed)."""
+        x = self._decide(context).x
+        if _STATE.get(x, "mode") == ManagerMode.DISARMED:
+            return -1
+        return int(_STATE.get(x, "active"))
+
+    def _tracker_after(self, context) -> int:
+        """The tracker that computes at this tick (-1: none, outside NORMAL mode)."""
+        x = self._decide(context).x
+        if _STATE.get(x, "mode") != ManagerMode.NORMAL:
+            return -1
+        return int(_STATE.get(x, "tracker"))
 
     def _update(self, context, discrete_state):
         decision = self._decide(context)
         discrete_state.set_value(self._state, decision.x)
-        command = self._commands[int(context.get_discrete_state(self._state).get_value()[
-            _STATE.slice("active")][0])].Eval(context)
+        x = context.get_discrete_state(self._state).get_value()
+        if _STATE.get(x, "mode") == ManagerMode.DISARMED:
+            discrete_state.set_value(self._last_command, level_command(
+                context.get_time(), _STATE.get(x, "issued_heading"), 0.0, 0.0))
+            return
+        command = self._commands[int(_STATE.get(x, "active"))].Eval(context)
         if command_is_usable(command):
             discrete_state.set_value(self._last_command, command)
 
@@ -278,8 +347,17 @@ class ControlManager(LeafSystem):
             and bool(np.all(np.isfinite(estimate)))
         if estimate_ok:
             self._follow_frame(x, estimate)
+        self._follow_arm(context, x, now)
         mode = ManagerMode(int(S.get(x, "mode")))
-        self._switch_on_request(context, x, now, mode == ManagerMode.NORMAL)
+        selectable = mode in (ManagerMode.NORMAL, ManagerMode.DISARMED)
+        self._switch_on_request(context, x, now, selectable)
+        self._switch_tracker_on_request(context, x, now, selectable)
+        if mode == ManagerMode.DISARMED:
+            reference = self._disarmed_reference(x, estimate if estimate_ok else None, now)
+            x[S.slice("issued_p")] = REFERENCE.get(reference, "p")
+            x[S.slice("issued_heading")] = REFERENCE.get(reference, "heading")
+            x[S.slice("held")], x[S.slice("control_error")] = 0.0, 0.0
+            return _Decision(x, reference)
         watching = mode in (ManagerMode.NORMAL, ManagerMode.ELAND) and \
             S.get(x, "estimate_seen") > 0.5
         cause = self._failsafe_cause(context, x, estimate_ok, now) if watching \
@@ -312,11 +390,48 @@ class ControlManager(LeafSystem):
         x[S.slice("issued_heading")] = REFERENCE.get(reference, "heading")
         return _Decision(x, reference)
 
+    def _follow_arm(self, context, x: np.ndarray, now: float) -> None:
+        """DISARMED while the `arm` input is 0; arming starts NORMAL mode afresh."""
+        if not self._arm.HasValue(context):
+            return
+        armed = bool(self._arm.Eval(context)[0] > 0.5)
+        disarmed = _STATE.get(x, "mode") == ManagerMode.DISARMED
+        if not armed and not disarmed:
+            x[_STATE.slice("mode")] = ManagerMode.DISARMED
+        elif armed and disarmed:
+            x[_STATE.slice("mode")] = ManagerMode.NORMAL
+            x[_STATE.slice("failsafe_cause")] = FailsafeCause.NONE
+            x[_STATE.slice("held")] = 0.0
+            x[_STATE.slice("active_since")] = now
+            x[_STATE.slice("tracker_since")] = now
+
+    def _disarmed_reference(self, x: np.ndarray, estimate, now: float) -> np.ndarray:
+        """Disarmed: the reference rests at the estimate (trackers start from it)."""
+        if estimate is None:
+            return self._hold_reference(now, _STATE.get(x, "issued_p"),
+                                        _STATE.get(x, "issued_heading"))
+        return self._hold_reference(now, STATE_ESTIMATE.get(estimate, "p_EB"),
+                                    STATE_ESTIMATE.get(estimate, "heading"))
+
     def _set_active(self, x: np.ndarray, index: int, now: float) -> None:
         if int(_STATE.get(x, "active")) != index:
             x[_STATE.slice("active")] = index
             x[_STATE.slice("active_since")] = now
             x[_STATE.slice("switches")] += 1
+
+    @staticmethod
+    def _new_request(context, port, x: np.ndarray, id_field: str, count: int):
+        """(index or None, refused): a new [id, index] request on `port`."""
+        if port is None or not port.HasValue(context):
+            return None, False
+        request_id, index = port.Eval(context)
+        if not (np.isfinite(request_id) and request_id > 0
+                and request_id != _STATE.get(x, id_field)):
+            return None, False
+        x[_STATE.slice(id_field)] = request_id
+        if np.isfinite(index) and 0 <= int(index) < count and int(index) == index:
+            return int(index), False
+        return None, True
 
     def _switch_on_request(self, context, x: np.ndarray, now: float, allowed: bool) -> None:
         S = _STATE
@@ -325,20 +440,30 @@ class ControlManager(LeafSystem):
         while k < len(self._schedule) and self._schedule[k][0] <= now + 1e-9:
             target, k = self._schedule[k][1], k + 1
         x[S.slice("next_scheduled")] = k
-        if self._request.HasValue(context):
-            request_id, index = self._request.Eval(context)
-            if np.isfinite(request_id) and request_id > 0 \
-                    and request_id != S.get(x, "request_id"):
-                x[S.slice("request_id")] = request_id
-                if np.isfinite(index) and 0 <= int(index) < len(self.names) \
-                        and int(index) == index:
-                    target = int(index)
-                else:
-                    x[S.slice("refusal")] = Refusal.UNKNOWN_CONTROLLER
+        requested, refused = self._new_request(context, self._request, x, "request_id",
+                                               len(self.names))
+        if refused:
+            x[S.slice("refusal")] = Refusal.UNKNOWN_CONTROLLER
+        target = requested if requested is not None else target
         if target is not None and not allowed:
             x[S.slice("refusal")] = Refusal.NOT_IN_NORMAL_MODE
         elif target is not None:
             self._set_active(x, target, now)
+
+    def _switch_tracker_on_request(self, context, x: np.ndarray, now: float,
+                                   allowed: bool) -> None:
+        S = _STATE
+        target, refused = self._new_request(context, self._tracker_request, x,
+                                            "tracker_request_id", len(self.trackers))
+        if refused:
+            x[S.slice("refusal")] = Refusal.UNKNOWN_TRACKER
+        elif target is not None and not allowed:
+            x[S.slice("refusal")] = Refusal.NOT_IN_NORMAL_MODE
+        elif target is not None and target != int(S.get(x, "tracker")):
+            x[S.slice("tracker")] = target
+            x[S.slice("tracker_since")] = now
+            x[S.slice("tracker_switches")] += 1
+            x[S.slice("held")] = 0.0
 
     def _failsafe_cause(self, context, x: np.ndarray, estimate_ok: bool,
                         now: float) -> FailsafeCause:
@@ -355,6 +480,19 @@ class ControlManager(LeafSystem):
                 return FailsafeCause.BAD_CONTROLLER
         return FailsafeCause.NONE
 
+    def _chi(self, context, x: np.ndarray, now: float) -> tuple[np.ndarray, Refusal]:
+        """The chi to follow: the `goal` input, or the active tracker's reference (with
+        TRACKER_FAILED when that tracker cannot produce one)."""
+        if self._goal is not None:
+            return self._goal.Eval(context), Refusal.NONE
+        k = int(_STATE.get(x, "tracker"))
+        reference = self._tracker_references[k].Eval(context)
+        status = self._tracker_statuses[k].Eval(context)
+        failed = TRACKER_STATUS.get(status, "valid") < 0.5 and \
+            TRACKER_STATUS.get(status, "reason") != ControllerReason.INACTIVE and \
+            _STATE.get(x, "tracker_since") < now
+        return reference, Refusal.TRACKER_FAILED if failed else Refusal.NONE
+
     def _reference(self, context, x: np.ndarray, mode: ManagerMode, estimate, now: float
                    ) -> np.ndarray:
         S = _STATE
@@ -365,9 +503,10 @@ class ControlManager(LeafSystem):
                                   heading=S.get(x, "eland_heading"), heading_rate=0.0)
         if mode == ManagerMode.FAILSAFE:
             return self._hold_reference(now, S.get(x, "issued_p"), S.get(x, "issued_heading"))
-        goal = self._goal.Eval(context)
-        refusal = self._area.check(REFERENCE.get(goal, "p")) if np.all(np.isfinite(goal)) \
-            else Refusal.NOT_FINITE
+        goal, refusal = self._chi(context, x, now)
+        if refusal == Refusal.NONE:
+            refusal = self._area.check(REFERENCE.get(goal, "p")) \
+                if np.all(np.isfinite(goal)) else Refusal.NOT_FINITE
         held = S.get(x, "held") > 0.5
         if held and refusal == Refusal.NONE and np.linalg.norm(
                 REFERENCE.get(goal, "p") - S.get(x, "hold_p")) <= self._area.rejoin_distance:
