@@ -62,6 +62,7 @@ from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, S
 from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
 from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
                                                      command_is_usable, level_command)
+from alight.systems.control.touchdown import light_time
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, rotation_matrix
 
@@ -528,12 +529,8 @@ class ControlManager(LeafSystem):
     def _detect_touchdown(self, context, x: np.ndarray) -> None:
         """M(34): the apparent mass of the issued thrust on its tilt."""
         command = context.get_discrete_state(self._last_command).get_value()
-        tilt_cos = rotation_matrix(FC_COMMAND.get(command, "q_WD"))[2, 2]
-        thrust = FC_COMMAND.get(command, "thrust")
-        apparent = float(self._vehicle.curve.apparent_mass(thrust)) * tilt_cos \
-            if thrust > 0 else 0.0
-        light = apparent < self._e.touchdown_mass_fraction * self._vehicle.mass
-        quiet = _STATE.get(x, "quiet_time") + self._period if light else 0.0
+        quiet = light_time(_STATE.get(x, "quiet_time"), command, self._vehicle,
+                           self._e.touchdown_mass_fraction, self._period)
         x[_STATE.slice("quiet_time")] = quiet
         if quiet >= self._e.touchdown_time:
             x[_STATE.slice("mode")] = ManagerMode.LANDED
