@@ -177,6 +177,10 @@ class ForceController(LeafSystem):
         """a_fb [m/s^2, in E], the reason (OK, SOLVER_FALLBACK, SOLVER_FAILED), solver status."""
         raise NotImplementedError
 
+    def _disturbance_gains(self, context) -> DisturbanceGains:
+        """The integrator gains of M(35)-(37) for this tick (the SE(3) gain group may switch)."""
+        return self._gains
+
     def _on_activation(self, context, discrete_state) -> None:
         """Resets the subclass's own state when the controller becomes active."""
 
@@ -248,8 +252,8 @@ class ForceController(LeafSystem):
         ramping = x[_INTERNAL.slice("ramping")][0] > 0.5
         state = x[_INTERNAL.slice("disturbance")]
         if not ramping:
-            state = disturbance.integrate(state, e_p, eta, self._period, self._gains,
-                                          self._limits)
+            state = disturbance.integrate(state, e_p, eta, self._period,
+                                          self._disturbance_gains(context), self._limits)
         m_e = disturbance.estimated_mass(self._vehicle.mass, state)
         d_w, d_b = disturbance.forces(state, eta)
         a_fb, reason, solver_status = self._feedback_acceleration(

@@ -4,6 +4,10 @@
 
 i.e. the feedback acceleration a_fb = -k_p o e_p - k_v o e_v of `ForceController`, with gains from
 a named group (soft / medium / tight, M Sec. 7.5) that also carries the disturbance-integrator gains.
+The group is switchable in flight through the optional `gain_group` input (the gain manager of
+M Sec. 7.5, alight.systems.control.constraint_manager): read every tick, it changes k_p, k_v and
+the integrator gains only; the integrators hold forces [N], so the disturbance estimate carries
+over unchanged and the command does not jump.
 """
 import dataclasses as dc
 
@@ -39,16 +43,36 @@ class Se3Params:
         return getattr(self.groups, self.gains)
 
 
+def gain_group_names() -> list[str]:
+    """The gain groups in the order the `gain_group` input indexes them: soft, medium, tight."""
+    return [f.name for f in dc.fields(Se3GainGroups)]
+
+
 class Se3Controller(ForceController):
-    """M(38). Ports as `ForceController`."""
+    """M(38). Ports as `ForceController`, plus the optional input `gain_group` (1: an index into
+    `gain_group_names()`; unconnected, non-finite or out of range: the YAML's `gains`)."""
 
     def __init__(self, vehicle: VehicleModel, so3: So3Params, params: Se3Params,
                  limits: DisturbanceLimits, period: float = 0.01, max_prediction: float = 0.1):
-        gains = params.active
-        super().__init__(vehicle, so3, gains.disturbance, limits, period,
+        super().__init__(vehicle, so3, params.active.disturbance, limits, period,
                          max_prediction=max_prediction)
-        self._k_p = np.asarray(gains.k_p, dtype=float)
-        self._k_v = np.asarray(gains.k_v, dtype=float)
+        self._groups = [getattr(params.groups, name) for name in gain_group_names()]
+        self._gains_k = [(np.asarray(g.k_p, dtype=float), np.asarray(g.k_v, dtype=float))
+                         for g in self._groups]
+        self._default = gain_group_names().index(params.gains)
+        self._gain_group = self.DeclareVectorInputPort("gain_group", 1)
+
+    def _group_index(self, context) -> int:
+        """This tick's group: the `gain_group` input when it names one, else the YAML's."""
+        if not self._gain_group.HasValue(context):
+            return self._default
+        index = self._gain_group.Eval(context)[0]
+        valid = np.isfinite(index) and index == int(index) and 0 <= index < len(self._groups)
+        return int(index) if valid else self._default
+
+    def _disturbance_gains(self, context) -> DisturbanceGains:
+        return self._groups[self._group_index(context)].disturbance
 
     def _feedback_acceleration(self, context, discrete_state, e_p, e_v, reference):
-        return -self._k_p * e_p - self._k_v * e_v, ControllerReason.OK, 0.0
+        k_p, k_v = self._gains_k[self._group_index(context)]
+        return -k_p * e_p - k_v * e_v, ControllerReason.OK, 0.0
