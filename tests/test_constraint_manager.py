@@ -193,7 +193,8 @@ def test_switching_gains_keeps_the_disturbance_estimate_and_the_command():
     handed = DISTURBANCE_ESTIMATE.pack(d_w=[1.5, -0.5], d_b=[0.0, 0.0], m_e=2.5)
     dut, context = se3_on_its_context([0.0, 0.0, 2.0], handed)
     for _ in range(60):                      # past the activation thrust ramp
-        desired_tilt(dut, context, "soft")
+        tilt = desired_tilt(dut, context, "soft")
+    assert tilt > 0.05                       # the disturbance alone tilts the command
     before_command = dut.GetOutputPort("fc_command").Eval(context).copy()
     before = dut.GetOutputPort("disturbance_estimate").Eval(context).copy()
     np.testing.assert_allclose(DISTURBANCE_ESTIMATE.get(before, "d_w"), [1.5, -0.5], atol=1e-9)
