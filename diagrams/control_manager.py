@@ -1,5 +1,6 @@
-"""The control manager's diagram, M Sec. 7.2: the controllers listed in models/control_manager.yaml,
-each built by its factory, wired to one `ControlManager` (systems/control/control_manager.py).
+"""The control manager's diagram, M Sec. 7.2: the controllers and trackers listed in
+models/control_manager.yaml, each built by its factory, wired to one `ControlManager`
+(systems/control/control_manager.py).
 
 Adding a controller is one LeafSystem that follows the controller contract of
 alight.systems.boundary and one entry in the YAML list (`name`, `factory: "module:function"`);
@@ -10,7 +11,9 @@ import dataclasses as dc
 import importlib
 from pathlib import Path
 
+from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource
 
 from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
                                          make_controller)
@@ -21,11 +24,15 @@ from alight.diagrams.simulation import simulate
 from alight.diagrams.track import add_faulty_mocap
 from alight.models import model_path
 from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_STATUS,
-                                     REFERENCE, STATE_ESTIMATE)
+                                     REFERENCE, STATE_ESTIMATE, TRACKER_INPUTS, TRACKER_OUTPUTS,
+                                     TRACKER_STATUS)
 from alight.systems.control import analytic_reference as ref
 from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
                                                     EmergencyParams, SafetyArea)
 from alight.systems.params import ConfigError, bounded, load_params
+from alight.systems.tracking.landoff_tracker import make_landoff_tracker
+from alight.systems.tracking.mpc_tracker import make_mpc_tracker
+from alight.systems.tracking.speed_tracker import make_speed_tracker
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
 
 
@@ -37,6 +44,26 @@ class ControllerEntry:
     factory: str = ""
 
 
+# The built-in trackers (M Sec. 4) with the kind of goal they follow (the UAV manager's
+# `<kind>_goal` output: a point/trajectory TrackerGoal, a LandoffGoal, a SpeedGoal).
+TRACKERS = {"mpc_tracker": "trajectory", "landoff": "landoff", "speed": "speed"}
+GOAL_KINDS = ("trajectory", "landoff", "speed")
+
+
+@dc.dataclass
+class TrackerEntry:
+    """One loaded tracker: a built-in name (TRACKERS) or any name with a factory
+    "package.module:function" taking the ControllersConfig and returning the LeafSystem, and
+    the kind of goal it follows (GOAL_KINDS; a built-in's own kind when empty)."""
+    name: str = ""
+    factory: str = ""
+    goal: str = ""
+
+    @property
+    def goal_kind(self) -> str:
+        return self.goal or TRACKERS.get(self.name, "trajectory")
+
+
 @dc.dataclass
 class ControlManagerConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")
@@ -46,12 +73,19 @@ class ControlManagerConfig:
     initial_controller: str = "se3"
     failsafe_controller: str = "failsafe"
     emergency_controller: str = "se3"
+    trackers: list[TrackerEntry] = dc.field(default_factory=lambda: [
+        TrackerEntry(name) for name in TRACKERS])
+    initial_tracker: str = "mpc_tracker"
     safety_area: SafetyArea = dc.field(default_factory=SafetyArea)
     emergency: EmergencyParams = dc.field(default_factory=EmergencyParams)
 
     @property
     def names(self) -> list[str]:
         return [entry.name for entry in self.controllers]
+
+    @property
+    def tracker_names(self) -> list[str]:
+        return [entry.name for entry in self.trackers]
 
 
 def load_control_manager_config(filename: str = "control_manager.yaml") -> ControlManagerConfig:
@@ -74,6 +108,19 @@ def check_control_manager_config(config: ControlManagerConfig, source: str = "<c
         if getattr(config, key) not in names:
             raise ConfigError(f"{source}: key '{key}' = {getattr(config, key)!r} is not one of "
                               f"the listed controllers {names}")
+    trackers = config.tracker_names
+    if not trackers or len(set(trackers)) != len(trackers) or "" in trackers:
+        raise ConfigError(f"{source}: key 'trackers' needs unique, non-empty names: {trackers}")
+    for entry in config.trackers:
+        if not entry.factory and entry.name not in TRACKERS:
+            raise ConfigError(f"{source}: key 'trackers': {entry.name!r} is not a built-in "
+                              f"tracker {list(TRACKERS)} and has no factory")
+        if entry.goal_kind not in GOAL_KINDS:
+            raise ConfigError(f"{source}: key 'trackers': {entry.name!r} has goal "
+                              f"{entry.goal!r}, expected one of {list(GOAL_KINDS)}")
+    if config.initial_tracker not in trackers:
+        raise ConfigError(f"{source}: key 'initial_tracker' = {config.initial_tracker!r} is not "
+                          f"one of the listed trackers {trackers}")
     try:
         config.safety_area.validate()
     except ValueError as e:
@@ -84,18 +131,42 @@ def build_controller(entry: ControllerEntry, controllers_config: ControllersConf
     """The LeafSystem of one YAML entry, checked against the controller contract."""
     if not entry.factory:
         return make_controller(entry.name, controllers_config)
-    module_name, _, function_name = entry.factory.partition(":")
+    return _build_plugin("controller", entry.name, entry.factory, controllers_config,
+                         CONTROLLER_INPUTS, CONTROLLER_OUTPUTS)
+
+
+def make_tracker(name: str, controllers_config: ControllersConfig):
+    """The LeafSystem of built-in tracker `name` (one of TRACKERS), from its models/ YAML."""
+    if name == "mpc_tracker":
+        return make_mpc_tracker()
+    if name == "landoff":
+        return make_landoff_tracker(controllers_config.vehicle)
+    if name == "speed":
+        return make_speed_tracker()
+    raise ValueError(f"unknown tracker {name!r}: expected one of {list(TRACKERS)}")
+
+
+def build_tracker(entry: TrackerEntry, controllers_config: ControllersConfig):
+    """The LeafSystem of one YAML tracker entry, checked against the tracker contract."""
+    if not entry.factory:
+        return make_tracker(entry.name, controllers_config)
+    return _build_plugin("tracker", entry.name, entry.factory, controllers_config,
+                         TRACKER_INPUTS, TRACKER_OUTPUTS)
+
+
+def _build_plugin(role: str, name: str, factory_path: str, controllers_config, inputs, outputs):
+    module_name, _, function_name = factory_path.partition(":")
     try:
         factory = getattr(importlib.import_module(module_name), function_name)
     except (ImportError, AttributeError, ValueError) as e:
-        raise ConfigError(f"controller {entry.name!r}: cannot load factory "
-                          f"{entry.factory!r} (expected 'package.module:function'): {e}") from None
+        raise ConfigError(f"{role} {name!r}: cannot load factory {factory_path!r} (expected "
+                          f"'package.module:function'): {e}") from None
     system = factory(controllers_config)
-    missing = [f"input {p}" for p in CONTROLLER_INPUTS if not system.HasInputPort(p)] + \
-        [f"output {p}" for p in CONTROLLER_OUTPUTS if not system.HasOutputPort(p)]
+    missing = [f"input {p}" for p in inputs if not system.HasInputPort(p)] + \
+        [f"output {p}" for p in outputs if not system.HasOutputPort(p)]
     if missing:
-        raise ConfigError(f"controller {entry.name!r} from {entry.factory!r} does not follow the "
-                          f"controller contract (alight.systems.boundary): missing {missing}")
+        raise ConfigError(f"{role} {name!r} from {factory_path!r} does not follow the {role} "
+                          f"contract (alight.systems.boundary): missing {missing}")
     return system
 
 
@@ -115,20 +186,26 @@ def parse_switch(text: str, names: list[str]) -> tuple[float, str]:
 class ManagedControllers:
     manager: ControlManager
     controllers: dict  # name -> LeafSystem
+    trackers: dict = dc.field(default_factory=dict)  # name -> LeafSystem
 
 
 def add_control_manager(builder, config: ControlManagerConfig,
-                        controllers_config: ControllersConfig, state_estimate, goal,
-                        switch_request=None, schedule: list[tuple[float, str]] | None = None
-                        ) -> ManagedControllers:
-    """The listed controllers and the manager, fed by the `state_estimate` and `goal` (REFERENCE)
-    ports; connect the manager's `fc_command` to the vehicle."""
+                        controllers_config: ControllersConfig, state_estimate, goal=None,
+                        switch_request=None, schedule: list[tuple[float, str]] | None = None,
+                        goals: dict | None = None, fc_attitude=None) -> ManagedControllers:
+    """The listed controllers and the manager, fed by the `state_estimate` port and either a
+    `goal` (REFERENCE) port (no trackers) or, with `goal` None, the listed trackers, each fed by
+    `goals[kind]` (an abstract goal port per GOAL_KINDS; a kind not given holds). `fc_attitude`
+    goes to the controllers that read it. Connect the manager's `fc_command` to the vehicle."""
+    trackers = [] if goal is not None else config.trackers
     manager = builder.AddNamedSystem("control_manager", ControlManager(
         config.names, config.initial_controller, config.failsafe_controller,
         config.emergency_controller, config.safety_area, config.emergency,
-        controllers_config.vehicle, config.period, schedule))
+        controllers_config.vehicle, config.period, schedule,
+        [entry.name for entry in trackers], config.initial_tracker if trackers else None))
     builder.Connect(state_estimate, manager.GetInputPort("state_estimate"))
-    builder.Connect(goal, manager.GetInputPort("goal"))
+    if goal is not None:
+        builder.Connect(goal, manager.GetInputPort("goal"))
     if switch_request is not None:
         builder.Connect(switch_request, manager.GetInputPort("switch_request"))
     controllers = {}
@@ -150,8 +227,31 @@ def add_control_manager(builder, config: ControlManagerConfig,
         if controller.HasInputPort("last_disturbance"):
             builder.Connect(manager.GetOutputPort("last_disturbance"),
                             controller.GetInputPort("last_disturbance"))
+        if fc_attitude is not None and controller.HasInputPort("fc_attitude"):
+            builder.Connect(fc_attitude, controller.GetInputPort("fc_attitude"))
         controllers[entry.name] = controller
-    return ManagedControllers(manager, controllers)
+    return ManagedControllers(manager, controllers, {
+        entry.name: _add_tracker(builder, manager, k, entry, controllers_config, state_estimate,
+                                 goals or {}) for k, entry in enumerate(trackers)})
+
+
+def _add_tracker(builder, manager, k: int, entry: TrackerEntry, controllers_config,
+                 state_estimate, goals: dict):
+    tracker = builder.AddNamedSystem(f"tracker_{entry.name}",
+                                     build_tracker(entry, controllers_config))
+    builder.Connect(state_estimate, tracker.GetInputPort("state_estimate"))
+    builder.Connect(manager.GetOutputPort("reference"), tracker.GetInputPort("last_reference"))
+    builder.Connect(manager.GetOutputPort(f"tracker_active_{k}"), tracker.GetInputPort("active"))
+    builder.Connect(tracker.GetOutputPort("reference"),
+                    manager.GetInputPort(f"tracker_reference_{k}"))
+    builder.Connect(tracker.GetOutputPort("tracker_status"),
+                    manager.GetInputPort(f"tracker_status_{k}"))
+    goal = goals.get(entry.goal_kind) or builder.AddSystem(
+        ConstantValueSource(AbstractValue.Make(None))).get_output_port()   # no goal: hold
+    builder.Connect(goal, tracker.GetInputPort("goal"))
+    if tracker.HasInputPort("last_command"):      # e.g. the landoff tracker's touchdown M(34)
+        builder.Connect(manager.GetOutputPort("fc_command"), tracker.GetInputPort("last_command"))
+    return tracker
 
 
 def add_managed_logging(builder, vehicle, managed: ManagedControllers, state_estimate, goal,
@@ -168,6 +268,9 @@ def add_managed_logging(builder, vehicle, managed: ManagedControllers, state_est
     for name, controller in managed.controllers.items():
         loggers.add(builder, f"status_{name}", controller.GetOutputPort("controller_status"),
                     CONTROLLER_STATUS, period)
+    for name, tracker in managed.trackers.items():
+        loggers.add(builder, f"tracker_status_{name}", tracker.GetOutputPort("tracker_status"),
+                    TRACKER_STATUS, period)
     return loggers
 
 

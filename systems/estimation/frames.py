@@ -88,3 +88,36 @@ class FrameAnchor(LeafSystem):
         out[STATE_ESTIMATE.slice("p_OldNew")] = 0.0
         out[STATE_ESTIMATE.slice("q_OldNew")] = [1.0, 0.0, 0.0, 0.0]
         output.SetFromVector(out)
+
+
+class FrameSwitch(LeafSystem):
+    """Input  `state_estimate` STATE_ESTIMATE in frame E0
+    Output `state_estimate` the same estimate in frame E1 from `at` [s] on, where X_E0E1 =
+           (p_OldNew, q_OldNew): frame_id + 1, frame_counter + 1 and X_OldNew reported, as the
+           arbiter does when it switches hypotheses (M Sec. 3.5)
+    Stateless (a function of time): for testing that trackers, controllers and managers
+    re-express their states and the vehicle does not move.
+    """
+
+    def __init__(self, at: float, p_OldNew, q_OldNew):
+        super().__init__()
+        self._at = float(at)
+        self._p, self._q = np.asarray(p_OldNew, float), np.asarray(q_OldNew, float)
+        R_OldNew = rotation_matrix(self._q)
+        # X_NewOld, the inverse: what re-expresses an estimate in E0 into E1.
+        self._p_NewOld = -R_OldNew.T @ self._p
+        self._q_NewOld = self._q * [1.0, -1.0, -1.0, -1.0] / np.linalg.norm(self._q)
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self.DeclareVectorOutputPort("state_estimate", STATE_ESTIMATE.size, self._calc)
+
+    def _calc(self, context, output):
+        estimate = self._estimate.Eval(context)
+        if context.get_time() < self._at:
+            return output.SetFromVector(estimate)
+        out = reexpress(estimate, self._p_NewOld, self._q_NewOld)
+        L = STATE_ESTIMATE
+        out[L.slice("frame_id")] = L.get(estimate, "frame_id") + 1.0
+        out[L.slice("frame_counter")] = L.get(estimate, "frame_counter") + 1.0
+        out[L.slice("p_OldNew")] = self._p
+        out[L.slice("q_OldNew")] = self._q
+        output.SetFromVector(out)
