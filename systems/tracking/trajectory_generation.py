@@ -98,17 +98,16 @@ class WaypointTrajectory:
     def derivative(self, times, order: int = 0) -> np.ndarray:
         """(len(times), 4) d^order/dt^order of [x, y, z, heading] at `times` (clamped to the
         trajectory: at rest before and after)."""
-        t = np.clip(np.asarray(times, float), 0.0, self.total_time)
+        times = np.atleast_1d(np.asarray(times, float))
+        t = np.clip(times, 0.0, self.total_time)
         i = np.clip(np.searchsorted(self.breaks, t, side="right") - 1, 0,
                     len(self.segment_times) - 1)
         T = self.segment_times[i]
         rows = basis_rows(order, (t - self.breaks[i]) / T, self.coefficients.shape[1])
         values = np.einsum("sn,sna->sa", rows, self.coefficients[i]) / T[:, None] ** order
         if order == 0:
-            values += self.waypoints[i]
-        outside = (np.asarray(times, float) < 0.0) | (np.asarray(times, float) > self.total_time)
-        if order > 0:
-            values[outside] = 0.0
+            return values + self.waypoints[i]
+        values[(times < 0.0) | (times > self.total_time)] = 0.0
         return values
 
     def value(self, times) -> np.ndarray:
