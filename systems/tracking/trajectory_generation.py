@@ -192,7 +192,7 @@ class SegmentQp:
         self._costs = [prog.AddQuadraticCost(self._H, np.zeros(AXES * self.n),
                                              self.c[index[:, i].ravel()], is_convex=True)
                        for i in range(segments)]
-        A, self._b = self._constraint(np.ones(segments)), None
+        A = self._constraint(np.ones(segments))
         self._equality = prog.AddLinearEqualityConstraint(A, np.zeros(A.shape[0]), self.c)
         self._index = index
         self.solver = ClarabelSolver()
@@ -200,8 +200,8 @@ class SegmentQp:
     def _axis_rows(self, times: np.ndarray) -> sp.csr_matrix:
         """One axis' equality rows: positions (2 per segment), rest, continuity (row-scaled)."""
         m, n, r = self.m, self.n, self.r
-        at0, at1 = [basis_rows(k, 0.0, n)[0] for k in range(n)], \
-            [basis_rows(k, 1.0, n)[0] for k in range(n)]
+        at0 = [basis_rows(k, 0.0, n)[0] for k in range(n)]
+        at1 = [basis_rows(k, 1.0, n)[0] for k in range(n)]
         rows, cols, vals = [], [], []
         count = 0
 
@@ -243,7 +243,7 @@ class SegmentQp:
         b[:, 1:2 * self.m:2] = np.diff(waypoints, axis=0).T        # p_i(1) - w_i
         self._equality.evaluator().UpdateCoefficients(A, b.ravel())
         result = self.solver.Solve(self.prog)
-        if not result.is_success():
+        if not result.is_success() or not np.all(np.isfinite(result.GetSolution(self.c))):
             raise RuntimeError(f"trajectory generation: the segment QP failed "
                                f"({result.get_solution_result()}) for times {times}")
         x = result.GetSolution(self.c)[self._index]                # (AXES, m, n)
@@ -296,6 +296,8 @@ class TrajectoryGenerator:
 
     def _qp(self, segments: int) -> SegmentQp:
         if segments not in self._qps:
+            if len(self._qps) >= 16:              # keep the programs of recent waypoint counts
+                self._qps.pop(next(iter(self._qps)))
             self._qps[segments] = SegmentQp(segments, self.r, self.params.continuity,
                                              self.params.velocity_weight)
         return self._qps[segments]
