@@ -159,3 +159,12 @@ def test_duplicate_waypoints_are_merged_keeping_the_later_heading():
     np.testing.assert_allclose(trajectory.waypoints, waypoints[[0, 2, 3]])
     assert np.all(np.isfinite(trajectory.coefficients))
     assert dense_ratios(trajectory).max() <= TOLERANCE
+
+
+def test_the_minimum_jerk_variant_respects_the_group_and_rests_at_both_ends():
+    trajectory = generator(minimize="jerk").generate(COURSE)      # degree 5, C4 at waypoints
+    assert trajectory.coefficients.shape[1] == 6
+    assert dense_ratios(trajectory).max() <= TOLERANCE
+    for k in (1, 2):
+        ends = trajectory.derivative([0.0, trajectory.total_time], k)
+        np.testing.assert_allclose(ends, 0.0, atol=1e-6)
