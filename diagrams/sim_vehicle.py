@@ -24,6 +24,7 @@ from alight.systems.plant.drag import AerodynamicDrag
 from alight.systems.plant.hexacopter import (add_hexacopter, airframe, load_hexacopter_params,
                                              propeller_infos)
 from alight.systems.plant.motors import EscThrustMap, first_order_motors
+from alight.systems.plant.tether import Tether, TetherParams
 from alight.systems.plant.wind import Wind, WindParams
 from alight.systems.sensors.fc_estimate import FcEstimate, FcEstimateParams
 from alight.systems.sensors.ground_truth import GroundTruth
@@ -47,6 +48,7 @@ class SimVehicleConfig:
     down_camera: DownCameraParams = dc.field(default_factory=DownCameraParams)  # source none: no camera
     target: TargetParams = dc.field(default_factory=TargetParams)  # profile none: no target
     rgbd_camera: RgbdCameraParams = dc.field(default_factory=RgbdCameraParams)  # the VIO camera
+    tether: TetherParams = dc.field(default_factory=TetherParams)  # enabled false: none
 
 
 def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleConfig:
@@ -116,9 +118,15 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     body_state = plant.get_state_output_port(instance)
     builder.Connect(body_state, drag.GetInputPort("body_state"))
     builder.Connect(wind.GetOutputPort("wind"), drag.GetInputPort("wind"))
-    forces = builder.AddNamedSystem("applied_forces", ExternallyAppliedSpatialForceMultiplexer(2))
-    builder.Connect(propellers.get_spatial_forces_output_port(), forces.get_input_port(0))
-    builder.Connect(drag.GetOutputPort("spatial_forces"), forces.get_input_port(1))
+    sources = [propellers.get_spatial_forces_output_port(), drag.GetOutputPort("spatial_forces")]
+    if config.tether.enabled:
+        tether = builder.AddNamedSystem("tether", Tether(body.index(), config.tether))
+        builder.Connect(body_state, tether.GetInputPort("body_state"))
+        sources.append(tether.GetOutputPort("spatial_forces"))
+    forces = builder.AddNamedSystem("applied_forces",
+                                    ExternallyAppliedSpatialForceMultiplexer(len(sources)))
+    for i, source in enumerate(sources):
+        builder.Connect(source, forces.get_input_port(i))
     builder.Connect(forces.get_output_port(), plant.get_applied_spatial_force_input_port())
 
     # Sensors: IMU (Drake's ideal accelerometer and gyroscope + noise model), FC estimate.
