@@ -9,10 +9,14 @@ import pytest
 from pydrake.systems.analysis import Simulator
 
 from alight.diagrams.controllers import load_controllers_config
-from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
+from alight.diagrams.landoff import fly_landoff
+from alight.diagrams.sim_vehicle import make_sim_vehicle
+from alight.diagrams.track import resting_position
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.control.force_controller import level_command
 from alight.systems.params import ConfigError
-from alight.systems.rotations import heading_quaternion
+from alight.systems.plant.tether import TetherParams, tether_tension
+from alight.systems.rotations import heading_quaternion, tilt_deg
 from alight.systems.thrust_curve import GRAVITY
 from alight.systems.tracking.chi_tracker import ChiReason
 from alight.systems.tracking.landoff_tracker import (LandoffGoal, load_landoff_tracker_params,
@@ -298,14 +302,6 @@ def test_no_nan_leaves_a_tracker_without_a_valid_estimate_or_reference():
 
 
 # --- closed loop on the simulated F550 ----------------------------------------------------------
-
-from alight.diagrams.landoff import fly_landoff                       # noqa: E402
-from alight.diagrams.track import resting_position                    # noqa: E402
-from alight.diagrams.sim_vehicle import make_sim_vehicle              # noqa: E402
-from alight.systems.boundary import FC_STATUS                         # noqa: E402
-from alight.systems.plant.tether import TetherParams, tether_tension  # noqa: E402
-from alight.systems.rotations import tilt_deg                         # noqa: E402
-
 
 def test_the_tether_pulls_toward_its_anchor_only_when_taut():
     params = TetherParams(enabled=True, anchor=[0.0, 0.0, 0.0], length=0.5, stiffness=1000.0,
