@@ -17,6 +17,7 @@ Each call sends one `UavCommand` and advances the simulation until the UAV manag
 done, refused, or the call's timeout; it returns a `RoutineResult`.
 """
 import dataclasses as dc
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,9 @@ from alight.systems.mission.uav_manager import (UAV_STATUS, Routine, UavCommand,
 from alight.systems.control.constraint_manager import (CONSTRAINT_STATUS, ConstraintManager,
                                                        GroupRefusal, make_constraint_manager)
 from alight.systems.params import ConfigError, load_params
+from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.tracking.goal import TrackerGoal
+from alight.systems.tracking.trajectory_generation import make_trajectory_generator
 
 
 def load_uav_manager_params(filename: str = "uav_manager.yaml") -> UavManagerParams:
@@ -158,6 +161,7 @@ class Mission:
         self._port.FixValue(self.context, AbstractValue.Make(None))
         self.results: list[RoutineResult] = []
         self.run_log: RunLog | None = None
+        self.generated = None      # the last trajectory of `fly_through`
 
     @classmethod
     def simulated(cls, vehicle_config: SimVehicleConfig | None = None, seed: int = 0,
@@ -192,6 +196,21 @@ class Mission:
         """Flies a sampled trajectory (its t_start counts from now)."""
         timeout = goal.t_start + goal.duration + 30.0 if timeout is None else timeout
         return self._call(Routine.TRAJECTORY, timeout, trajectory=goal)
+
+    def fly_through(self, waypoints, constraints: str | None = None,
+                    heading: float | None = None) -> RoutineResult:
+        """Generates a trajectory (M Sec. 6) from the current estimate through `waypoints` (rows
+        [x, y, z] or [x, y, z, heading] in E) under a constraint group (default: the trajectory
+        generator's) and flies it; `heading` for rows without one (None: the current)."""
+        estimate = self.estimate()
+        here = np.append(STATE_ESTIMATE.get(estimate, "p_EB"),
+                         STATE_ESTIMATE.get(estimate, "heading"))
+        rows = np.atleast_2d(np.asarray(waypoints, float))
+        if rows.shape[1] == 3:
+            rows = np.column_stack([rows, np.full(len(rows), here[3] if heading is None
+                                                  else heading)])
+        self.generated = self.generator.generate(np.vstack([here, rows]), constraints)
+        return self.trajectory(self.generated.goal())
 
     def speed(self, goal, hold: float = 0.0) -> RoutineResult:
         """Flies the speed tracker's `goal` (a SpeedGoal) for `hold` s."""
@@ -242,6 +261,16 @@ class Mission:
     def status(self) -> np.ndarray:
         """The UAV manager's UAV_STATUS now."""
         return evaluate(self.onboard.uav, "uav_status", self.context)
+
+    def estimate(self) -> np.ndarray:
+        """The STATE_ESTIMATE the stack flies on, now."""
+        return self.onboard.state_estimate.Eval(
+            self.onboard.state_estimate.get_system().GetMyContextFromRoot(self.context))
+
+    @functools.cached_property
+    def generator(self):
+        """The trajectory generator (models/trajectory_generation.yaml) of `fly_through`."""
+        return make_trajectory_generator()
 
     # --- plumbing ----------------------------------------------------------------------------
 

@@ -218,7 +218,10 @@ TRACKER_STATUS = VectorLayout("tracker_status", CONTROLLER_STATUS.fields)
 # alight.systems.tracking.goal.TrackerGoal, or a tracker-specific goal), `active` (1: only the
 # active one computes) and `last_reference` (REFERENCE: the reference the control manager issued
 # last; a tracker that becomes active starts from it), and outputs `reference` (REFERENCE, chi of
-# M(16) in E) and `tracker_status` (TRACKER_STATUS).
+# M(16) in E) and `tracker_status` (TRACKER_STATUS). Trackers update with periodic unrestricted
+# update events: Drake applies those before the discrete updates of the control manager and the
+# controllers at the same tick, which therefore read this tick's reference (at an estimator frame
+# switch, one already re-expressed by the tracker in the new frame).
 TRACKER_INPUTS = {"state_estimate": STATE_ESTIMATE, "goal": None, "active": None,
                   "last_reference": REFERENCE}
 TRACKER_OUTPUTS = {"reference": REFERENCE, "tracker_status": TRACKER_STATUS}

@@ -346,8 +346,10 @@ class ControlManager(LeafSystem):
         estimate = self._estimate.Eval(context)
         estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 \
             and bool(np.all(np.isfinite(estimate)))
-        if estimate_ok:
-            self._follow_frame(x, estimate)
+        # At the tick of a frame switch the control error mixes frames for the systems that
+        # read this manager's outputs while the trackers update (before their update): it is not
+        # watched at that tick.
+        switching = estimate_ok and self._follow_frame(x, estimate)
         self._follow_arm(context, x, now)
         mode = ManagerMode(int(S.get(x, "mode")))
         selectable = mode in (ManagerMode.NORMAL, ManagerMode.DISARMED)
@@ -365,26 +367,27 @@ class ControlManager(LeafSystem):
             else FailsafeCause.NONE
         if estimate_ok:
             x[S.slice("estimate_seen")] = 1.0
-        reference = self._reference(context, x, mode, estimate if estimate_ok else None, now)
+        reference = self._reference(context, x, mode, now)
         error = float(np.linalg.norm(REFERENCE.get(reference, "p")
                                      - STATE_ESTIMATE.get(estimate, "p_EB"))) \
             if estimate_ok else float("nan")
         x[S.slice("control_error")] = error if np.isfinite(error) else 0.0
-        if cause == FailsafeCause.NONE and mode == ManagerMode.NORMAL and watching and \
+        watching_error = watching and not switching
+        if cause == FailsafeCause.NONE and mode == ManagerMode.NORMAL and watching_error and \
                 error > self._e.failsafe_threshold:
             cause = FailsafeCause.CONTROL_ERROR
         if cause != FailsafeCause.NONE:
             x[S.slice("mode")] = ManagerMode.FAILSAFE
             x[S.slice("failsafe_cause")] = cause
             self._set_active(x, self._failsafe, now)
-        elif mode == ManagerMode.NORMAL and watching and error > self._e.threshold:
+        elif mode == ManagerMode.NORMAL and watching_error and error > self._e.threshold:
             x[S.slice("mode")] = ManagerMode.ELAND
             x[S.slice("eland_start")] = now
             x[S.slice("eland_p")] = STATE_ESTIMATE.get(estimate, "p_EB")
             x[S.slice("eland_heading")] = STATE_ESTIMATE.get(estimate, "heading")
             x[S.slice("quiet_time")] = 0.0
             self._set_active(x, self._emergency, now)
-            reference = self._reference(context, x, ManagerMode.ELAND, estimate, now)
+            reference = self._reference(context, x, ManagerMode.ELAND, now)
         elif mode == ManagerMode.ELAND:
             self._detect_touchdown(context, x)
         x[S.slice("issued_p")] = REFERENCE.get(reference, "p")
@@ -483,7 +486,10 @@ class ControlManager(LeafSystem):
 
     def _chi(self, context, x: np.ndarray, now: float) -> tuple[np.ndarray, Refusal]:
         """The chi to follow: the `goal` input, or the active tracker's reference (with
-        TRACKER_FAILED when that tracker cannot produce one)."""
+        TRACKER_FAILED when that tracker cannot produce one). Trackers update with unrestricted
+        update events, which Drake applies before the discrete updates of this manager and the
+        controllers at the same tick: at the tick of an estimator frame switch the tracker has
+        already re-expressed its state, and its reference is in the new frame."""
         if self._goal is not None:
             return self._goal.Eval(context), Refusal.NONE
         k = int(_STATE.get(x, "tracker"))
@@ -494,8 +500,7 @@ class ControlManager(LeafSystem):
             _STATE.get(x, "tracker_since") < now
         return reference, Refusal.TRACKER_FAILED if failed else Refusal.NONE
 
-    def _reference(self, context, x: np.ndarray, mode: ManagerMode, estimate, now: float
-                   ) -> np.ndarray:
+    def _reference(self, context, x: np.ndarray, mode: ManagerMode, now: float) -> np.ndarray:
         S = _STATE
         if mode in (ManagerMode.ELAND, ManagerMode.LANDED):
             descent = self._e.descent_speed
@@ -535,14 +540,15 @@ class ControlManager(LeafSystem):
         if quiet >= self._e.touchdown_time:
             x[_STATE.slice("mode")] = ManagerMode.LANDED
 
-    def _follow_frame(self, x: np.ndarray, estimate: np.ndarray) -> None:
-        """Re-expresses the stored points when the estimator frame changes (M Sec. 3.5)."""
+    def _follow_frame(self, x: np.ndarray, estimate: np.ndarray) -> bool:
+        """Re-expresses the stored points when the estimator frame changes (M Sec. 3.5);
+        True at the tick of a switch."""
         S = _STATE
         counter = STATE_ESTIMATE.get(estimate, "frame_counter")
         previous = S.get(x, "frame_counter")
         x[S.slice("frame_counter")] = counter
         if not np.isfinite(previous) or counter == previous:
-            return
+            return False
         R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
         p_OldNew = STATE_ESTIMATE.get(estimate, "p_OldNew")
         yaw = heading(R_OldNew)
@@ -550,3 +556,4 @@ class ControlManager(LeafSystem):
                        ("issued_p", "issued_heading")):
             x[S.slice(p)] = R_OldNew.T @ (S.get(x, p) - p_OldNew)
             x[S.slice(eta)] = S.get(x, eta) - yaw
+        return True

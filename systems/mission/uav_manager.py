@@ -133,6 +133,17 @@ class UavMemory:
     frame_counter: float = np.nan
 
 
+def reexpress_rows(rows, estimate: np.ndarray) -> np.ndarray:
+    """Rows [x, y, z(, heading)] of the old estimator frame in the new one, by the last switch's
+    X_OldNew that `estimate` reports (M Sec. 3.5)."""
+    R = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
+    rows = np.array(rows, float, ndmin=2)
+    rows[:, :3] = (rows[:, :3] - STATE_ESTIMATE.get(estimate, "p_OldNew")) @ R
+    if rows.shape[1] > 3:
+        rows[:, 3] -= heading(R)
+    return rows
+
+
 class UavManager(LeafSystem):
     """Inputs  `state_estimate` STATE_ESTIMATE; `command` (abstract UavCommand or None);
             `manager_status` MANAGER_STATUS; `landed` (1, optional: the landing tracker's
@@ -174,14 +185,29 @@ class UavManager(LeafSystem):
             [self._read(c).tracker_id, self._read(c).tracker_index]), state)
         self.DeclareVectorOutputPort("group_request", 4, lambda c, o: o.SetFromVector(
             self._read(c).group_request), state)
-        for name in ("trajectory", "landoff", "speed"):
-            self.DeclareAbstractOutputPort(
+        self.DeclareAbstractOutputPort(
+            "trajectory_goal", lambda: AbstractValue.Make(None), self._calc_trajectory_goal,
+            {self.all_state_ticket(), self._estimate.ticket()})
+        for name in ("landoff", "speed"):     # relative to the vehicle / re-expressed by the
+            self.DeclareAbstractOutputPort(   # speed tracker itself
                 f"{name}_goal", lambda: AbstractValue.Make(None),
                 lambda c, o, name=name: o.set_value(getattr(self._read(c), name)), state)
         self.DeclareVectorOutputPort("uav_status", UAV_STATUS.size, self._calc_status, state)
 
     def _read(self, context) -> UavMemory:
         return context.get_abstract_state(int(self._memory)).get_value()
+
+    def _calc_trajectory_goal(self, context, output):
+        """The flying tracker's goal, in the estimate's frame even at the tick of a frame switch
+        (the MPC tracker re-plans on it at that tick, before this manager's next update)."""
+        memory = self._read(context)
+        goal = memory.trajectory
+        estimate = self._estimate.Eval(context)
+        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
+        if goal is not None and np.isfinite(memory.frame_counter) and np.isfinite(counter) \
+                and counter != memory.frame_counter:
+            goal = dc.replace(goal, samples=reexpress_rows(goal.samples, estimate))
+        output.set_value(goal)
 
     def _calc_status(self, context, output):
         m = self._read(context)
@@ -214,21 +240,12 @@ class UavManager(LeafSystem):
         previous, memory.frame_counter = memory.frame_counter, counter
         if not np.isfinite(previous) or counter == previous:
             return
-        R = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
-        p_OldNew, yaw = STATE_ESTIMATE.get(estimate, "p_OldNew"), heading(R)
-
-        def moved(rows: np.ndarray) -> np.ndarray:
-            rows = np.array(rows, float, ndmin=2)
-            rows[:, :3] = (rows[:, :3] - p_OldNew) @ R
-            if rows.shape[1] > 3:
-                rows[:, 3] -= yaw
-            return rows
-        memory.home = moved(memory.home)[0]
+        memory.home = reexpress_rows(memory.home, estimate)[0]
         if memory.target is not None:
-            memory.target = moved(memory.target)[0]
+            memory.target = reexpress_rows(memory.target, estimate)[0]
         if memory.trajectory is not None:
-            memory.trajectory = dc.replace(memory.trajectory,
-                                           samples=moved(memory.trajectory.samples))
+            memory.trajectory = dc.replace(memory.trajectory, samples=reexpress_rows(
+                memory.trajectory.samples, estimate))
 
     def _follow_manager(self, memory: UavMemory, mode: float) -> None:
         if mode in (ManagerMode.ELAND, ManagerMode.FAILSAFE) and memory.phase != Phase.IDLE:
