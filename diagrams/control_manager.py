@@ -69,7 +69,7 @@ class ControlManagerConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")
     controllers_file: str = "controllers.yaml"
     controllers: list[ControllerEntry] = dc.field(default_factory=lambda: [
-        ControllerEntry(name) for name in CONTROLLERS])
+        ControllerEntry(name) for name in ("se3", "mpc", "failsafe")])
     initial_controller: str = "se3"
     failsafe_controller: str = "failsafe"
     emergency_controller: str = "se3"
@@ -290,7 +290,8 @@ def fly_managed(vehicle_config: SimVehicleConfig, trajectory: ref.Trajectory, se
     goal = builder.AddNamedSystem("goal", ref.AnalyticReference(trajectory, config.period))
     request = switch_request_source(builder) if switch_request_source else None
     managed = add_control_manager(builder, config, controllers_config, estimate,
-                                  goal.GetOutputPort("reference"), request, schedule)
+                                  goal.GetOutputPort("reference"), request, schedule,
+                                  fc_attitude=vehicle.GetOutputPort("fc_attitude"))
     builder.Connect(managed.manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
                                   goal.GetOutputPort("reference"), config.period)

@@ -5,12 +5,14 @@ from alight.models import model_path
 from alight.systems.control.disturbance import DisturbanceLimits
 from alight.systems.control.failsafe import FailsafeController, FailsafeParams
 from alight.systems.control.force_controller import VehicleModel
+from alight.systems.control.linear_model import LinearModelParams
+from alight.systems.control.linear_mpc import LinearMpc, LinearMpcParams
 from alight.systems.control.mpc_force import MpcForceController, MpcForceParams
 from alight.systems.control.se3 import Se3Controller, Se3Params
 from alight.systems.control.so3 import So3Params
 from alight.systems.params import bounded, load_params
 
-CONTROLLERS = ("se3", "mpc", "failsafe")
+CONTROLLERS = ("se3", "mpc", "failsafe", "linear_mpc")
 
 
 @dc.dataclass
@@ -23,6 +25,10 @@ class ControllersConfig:
     se3: Se3Params = dc.field(default_factory=Se3Params)
     mpc: MpcForceParams = dc.field(default_factory=MpcForceParams)
     failsafe: FailsafeParams = dc.field(default_factory=FailsafeParams)
+    # The landing paper's linear MPC (L Sec. 6.1-6.2, attitude + thrust, 20 Hz) as a controller
+    # of the control manager: its tuning and identified model (models/).
+    linear_mpc: str = "linear_mpc.yaml"
+    linear_model: str = "linear_model.yaml"
 
 
 def load_controllers_config(filename: str = "controllers.yaml") -> ControllersConfig:
@@ -41,4 +47,7 @@ def make_controller(name: str, config: ControllersConfig):
                                   config.max_prediction)
     if name == "failsafe":
         return FailsafeController(config.vehicle, config.failsafe, config.period)
+    if name == "linear_mpc":
+        return LinearMpc(load_params(LinearModelParams, model_path(config.linear_model)),
+                         load_params(LinearMpcParams, model_path(config.linear_mpc)))
     raise ValueError(f"unknown controller {name!r}: expected one of {list(CONTROLLERS)}")

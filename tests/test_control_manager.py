@@ -10,7 +10,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.primitives import ConstantVectorSource
 
 from alight.diagrams.control_manager import (ControlManagerConfig, ControllerEntry,
-                                             build_controller,
+                                             TrackerEntry, build_controller, build_tracker,
                                              check_control_manager_config,
                                              load_control_manager_config, parse_switch)
 from alight.diagrams.controllers import load_controllers_config
@@ -232,10 +232,20 @@ def not_a_controller(controllers_config):
 
 def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
     config = load_control_manager_config()
-    assert config.names == NAMES
+    assert config.names == NAMES + ["linear_mpc"]
+    assert config.tracker_names == ["mpc_tracker", "landoff", "speed"]
     controllers_config = load_controllers_config(config.controllers_file)
     for entry in config.controllers:
         assert build_controller(entry, controllers_config).HasOutputPort("fc_command")
+    for entry in config.trackers:
+        assert build_tracker(entry, controllers_config).HasOutputPort("reference")
+    with pytest.raises(ConfigError, match="initial_tracker"):
+        check_control_manager_config(dc.replace(config, initial_tracker="pid"))
+    with pytest.raises(ConfigError, match="goal"):
+        check_control_manager_config(dc.replace(config, trackers=[
+            TrackerEntry("mine", f"{__name__}:not_a_controller", goal="pose")]))
+    with pytest.raises(ConfigError, match="tracker contract"):
+        build_tracker(TrackerEntry("bad", f"{__name__}:not_a_controller"), controllers_config)
     with pytest.raises(ConfigError, match="emergency_controller"):
         check_control_manager_config(dc.replace(config, emergency_controller="pid"))
     with pytest.raises(ConfigError, match="built-in"):
