@@ -33,6 +33,7 @@ from alight.systems.params import ConfigError, bounded, load_params
 from alight.systems.tracking.landoff_tracker import make_landoff_tracker
 from alight.systems.tracking.mpc_tracker import make_mpc_tracker
 from alight.systems.tracking.speed_tracker import make_speed_tracker
+from alight.systems.tracking.target_tracker import make_target_tracker
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
 
 
@@ -44,10 +45,12 @@ class ControllerEntry:
     factory: str = ""
 
 
-# The built-in trackers (M Sec. 4) with the kind of goal they follow (the UAV manager's
-# `<kind>_goal` output: a point/trajectory TrackerGoal, a LandoffGoal, a SpeedGoal).
-TRACKERS = {"mpc_tracker": "trajectory", "landoff": "landoff", "speed": "speed"}
-GOAL_KINDS = ("trajectory", "landoff", "speed")
+# The built-in trackers (M Sec. 4, L Sec. 6.3) with the kind of goal they follow (the UAV
+# manager's `<kind>_goal` output: a point/trajectory TrackerGoal, a LandoffGoal, a SpeedGoal; the
+# landing mission's TargetGoal).
+TRACKERS = {"mpc_tracker": "trajectory", "landoff": "landoff", "speed": "speed",
+            "target": "target"}
+GOAL_KINDS = ("trajectory", "landoff", "speed", "target")
 
 
 @dc.dataclass
@@ -143,6 +146,8 @@ def make_tracker(name: str, controllers_config: ControllersConfig):
         return make_landoff_tracker(controllers_config.vehicle)
     if name == "speed":
         return make_speed_tracker()
+    if name == "target":
+        return make_target_tracker()
     raise ValueError(f"unknown tracker {name!r}: expected one of {list(TRACKERS)}")
 
 
@@ -192,11 +197,13 @@ class ManagedControllers:
 def add_control_manager(builder, config: ControlManagerConfig,
                         controllers_config: ControllersConfig, state_estimate, goal=None,
                         switch_request=None, schedule: list[tuple[float, str]] | None = None,
-                        goals: dict | None = None, fc_attitude=None) -> ManagedControllers:
+                        goals: dict | None = None, fc_attitude=None,
+                        target_estimate=None) -> ManagedControllers:
     """The listed controllers and the manager, fed by the `state_estimate` port and either a
     `goal` (REFERENCE) port (no trackers) or, with `goal` None, the listed trackers, each fed by
     `goals[kind]` (an abstract goal port per GOAL_KINDS; a kind not given holds). `fc_attitude`
-    goes to the controllers that read it. Connect the manager's `fc_command` to the vehicle."""
+    goes to the controllers that read it, `target_estimate` (TARGET_ESTIMATE) to the trackers
+    that read it. Connect the manager's `fc_command` to the vehicle."""
     trackers = [] if goal is not None else config.trackers
     manager = builder.AddNamedSystem("control_manager", ControlManager(
         config.names, config.initial_controller, config.failsafe_controller,
@@ -232,11 +239,12 @@ def add_control_manager(builder, config: ControlManagerConfig,
         controllers[entry.name] = controller
     return ManagedControllers(manager, controllers, {
         entry.name: _add_tracker(builder, manager, k, entry, controllers_config, state_estimate,
-                                 goals or {}) for k, entry in enumerate(trackers)})
+                                 goals or {}, target_estimate)
+        for k, entry in enumerate(trackers)})
 
 
 def _add_tracker(builder, manager, k: int, entry: TrackerEntry, controllers_config,
-                 state_estimate, goals: dict):
+                 state_estimate, goals: dict, target_estimate=None):
     tracker = builder.AddNamedSystem(f"tracker_{entry.name}",
                                      build_tracker(entry, controllers_config))
     builder.Connect(state_estimate, tracker.GetInputPort("state_estimate"))
@@ -251,6 +259,8 @@ def _add_tracker(builder, manager, k: int, entry: TrackerEntry, controllers_conf
     builder.Connect(goal, tracker.GetInputPort("goal"))
     if tracker.HasInputPort("last_command"):      # e.g. the landoff tracker's touchdown M(34)
         builder.Connect(manager.GetOutputPort("fc_command"), tracker.GetInputPort("last_command"))
+    if target_estimate is not None and tracker.HasInputPort("target_estimate"):
+        builder.Connect(target_estimate, tracker.GetInputPort("target_estimate"))
     return tracker
 
 

@@ -84,7 +84,8 @@ def add_managed_onboard(builder, vehicle, config: ControlManagerConfig | None = 
     managed = add_control_manager(
         builder, config, controllers_config, estimate,
         switch_request=uav.GetOutputPort("switch_request"), schedule=schedule,
-        goals={kind: uav.GetOutputPort(f"{kind}_goal") for kind in GOAL_KINDS},
+        goals={kind: uav.GetOutputPort(f"{kind}_goal") for kind in GOAL_KINDS
+               if uav.HasOutputPort(f"{kind}_goal")},   # not its kinds (target) hold
         fc_attitude=vehicle.GetOutputPort("fc_attitude"))
     manager = managed.manager
     _connect_groups(builder, groups, estimate, uav, managed)

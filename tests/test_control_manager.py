@@ -233,7 +233,7 @@ def not_a_controller(controllers_config):
 def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
     config = load_control_manager_config()
     assert config.names == NAMES + ["linear_mpc"]
-    assert config.tracker_names == ["mpc_tracker", "landoff", "speed"]
+    assert config.tracker_names == ["mpc_tracker", "landoff", "speed", "target"]
     controllers_config = load_controllers_config(config.controllers_file)
     for entry in config.controllers:
         assert build_controller(entry, controllers_config).HasOutputPort("fc_command")

@@ -1,0 +1,201 @@
+"""The landing paper's reference generator (L Sec. 6.3, Fig. 8) as a tracker of the managed stack
+(M Sec. 4, 7.2), at 100 Hz: the target estimate predicted by t_prediction with its velocity, then
+first-order low-pass filters on position and velocity (L Table 2 cut-offs), at a commanded height.
+
+Horizontally the reference is the filtered target (plus the goal's offset). It starts from
+`last_reference` (M Sec. 7.2: no jump): the gap between the reference it started from and the
+filtered target is a catch-up offset that shrinks with the time constant `catch_up_time`, at most
+`catch_up_speed` relative to the target, so the reference reaches the target without a step that
+the control manager's control-error watch would take for an emergency. Vertically (`TargetGoal`):
+- `descent_rate` 0: the height where it started is held (L Sec. 6.4 Follow);
+- `descent_rate` > 0 without `height`: descends at that rate (Landing Phase 1/2), never more than
+  `press_depth` below the target (pressed onto the platform, not through it), with the vertical
+  velocity the target's less the rate, as the landing mission's (L Sec. 6.4);
+- `descent_rate` > 0 with `height`: goes at that rate to `height` above the target and follows it.
+
+Without a usable target estimate (not valid, not finite, or in an estimator frame other than the
+current one or the one just left) the reference stops where it is and holds (TARGET_INVALID);
+when the target returns it starts again from there. A target estimate one frame switch behind
+is re-expressed with that switch; the filter states and the offset are re-expressed with chi.
+"""
+import dataclasses as dc
+import enum
+
+import numpy as np
+
+from alight.models import model_path
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.mission.reference_generator import filter_reference, predict_target
+from alight.systems.params import bounded, load_params
+from alight.systems.rotations import rotation_matrix
+from alight.systems.tracking.chi_tracker import ChiMemory, ChiReason, ChiTracker, reexpress_point
+from alight.systems.tracking.speed_tracker import clip_norm
+
+
+class TargetReason(enum.IntEnum):
+    """`tracker_status.reason`: ChiReason's 0-5, then the target tracker's own."""
+    OK = 0
+    INACTIVE = 1
+    NO_GOAL = 2          # active without a goal: holds
+    NOT_FINITE = 3
+    BAD_START = 4
+    BAD_GOAL = 5         # descent rate over `max_descent_rate`: ignored, holding
+    TARGET_INVALID = 11  # no usable target estimate: holds
+    DESCENDING = 12      # going down toward the platform or the goal's height
+
+
+@dc.dataclass(frozen=True)
+class TargetGoal:
+    """descent_rate [m/s] >= 0 (0: hold the height); height [m] above the target or None (down
+    to the platform); offset [m] x, y in E from the target. Raises ValueError when invalid."""
+    descent_rate: float = 0.0
+    height: float | None = None
+    offset: tuple = (0.0, 0.0)
+
+    def __post_init__(self):
+        if not (np.isfinite(self.descent_rate) and self.descent_rate >= 0.0):
+            raise ValueError(f"target goal: descent_rate {self.descent_rate} must be finite and "
+                             f">= 0 m/s")
+        if self.height is not None and not (np.isfinite(self.height) and self.descent_rate > 0):
+            raise ValueError(f"target goal: height {self.height} must be finite, with a "
+                             f"descent_rate > 0 to get there")
+        offset = np.asarray(self.offset, dtype=float)
+        if offset.shape != (2,) or not np.all(np.isfinite(offset)):
+            raise ValueError(f"target goal: offset must be 2 finite numbers [x, y], got "
+                             f"{self.offset!r}")
+        object.__setattr__(self, "offset", (float(offset[0]), float(offset[1])))
+
+    @staticmethod
+    def follow() -> "TargetGoal":
+        return TargetGoal()
+
+    @staticmethod
+    def descend(rate: float) -> "TargetGoal":
+        return TargetGoal(descent_rate=float(rate))
+
+
+@dc.dataclass
+class TargetTrackerParams:
+    """Defaults: L Table 2 (prediction, cut-offs) and L Sec. 6.4 (press depth)."""
+    period: float = bounded(0.01, 0.001, 0.1, "s")                # 100 Hz
+    t_prediction: float = bounded(0.1, 0.0, 5.0, "s")             # t_Prediction
+    cutoff_position: float = bounded(30.0, 0.01, 1000.0, "Hz")    # f_CutOffPosition
+    cutoff_velocity: float = bounded(30.0, 0.01, 1000.0, "Hz")    # f_CutOffVelocity
+    press_depth: float = bounded(0.5, 0.0, 5.0, "m")              # below the target, at most
+    catch_up_speed: float = bounded(2.0, 0.05, 20.0, "m/s")       # relative to the target
+    catch_up_time: float = bounded(0.5, 0.01, 10.0, "s")          # offset time constant
+    max_descent_rate: float = bounded(5.0, 0.05, 20.0, "m/s")     # larger goals are refused
+
+
+@dc.dataclass
+class TargetMemory(ChiMemory):
+    """The L Fig. 8 filter states (predicted target position, velocity, in E), the catch-up
+    offset (x, y), whether the filters must start again from chi, the frame counter before the
+    last switch."""
+    p_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
+    v_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
+    offset: np.ndarray = dc.field(default_factory=lambda: np.zeros(2))
+    restart: bool = True
+    old_frame_counter: float = np.nan
+
+
+class TargetTracker(ChiTracker):
+    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` TargetGoal (abstract; None: hold);
+            `active` (1); `last_reference` REFERENCE; `target_estimate` TARGET_ESTIMATE (in E;
+            unconnected: no target)
+    Outputs `reference` REFERENCE (chi of M(16) in E: position, velocity; acceleration and jerk
+            zero; heading held; stamped one period ahead); `tracker_status` TRACKER_STATUS
+            (reason: TargetReason)
+    """
+
+    def __init__(self, params: TargetTrackerParams):
+        super().__init__(params.period, TargetMemory(), TargetGoal)
+        self.params = params
+        self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
+
+    def _begin(self, context, memory: TargetMemory, goal, estimate) -> ChiReason:
+        if goal is not None and goal.descent_rate > self.params.max_descent_rate:
+            return ChiReason.BAD_GOAL
+        if not memory.active:
+            memory.restart = True
+        elif goal is not None and memory.goal is not None:   # a new offset: no jump either
+            memory.offset += np.subtract(memory.goal.offset, goal.offset)
+        return ChiReason.OK
+
+    def _reexpress(self, memory: TargetMemory, R_OldNew, p_OldNew) -> None:
+        memory.p_filtered = reexpress_point(memory.p_filtered, R_OldNew, p_OldNew)
+        memory.v_filtered = R_OldNew.T @ memory.v_filtered
+        memory.offset = (R_OldNew.T @ [*memory.offset, 0.0])[:2]
+        memory.old_frame_counter = memory.frame_counter
+
+    def _step(self, context, memory: TargetMemory, estimate) -> TargetReason:
+        target = self._target_in_frame(context, memory, estimate)
+        chi, P = memory.chi, REFERENCE
+        if memory.goal is None or target is None:
+            memory.restart = True
+            for field in ("v", "a", "j", "heading_rate"):
+                chi[P.slice(field)] = 0.0
+            return TargetReason.OK if target is not None else TargetReason.TARGET_INVALID
+        p_T, v_T = target
+        params, goal = self.params, memory.goal
+        if memory.restart:
+            self._restart(memory, p_T, v_T)
+        memory.p_filtered, memory.v_filtered = filter_reference(
+            memory.p_filtered, memory.v_filtered, p_T, v_T, params.t_prediction,
+            params.cutoff_position, params.cutoff_velocity, self.period)
+        catch_up = -clip_norm(memory.offset / params.catch_up_time, params.catch_up_speed)
+        memory.offset = memory.offset + catch_up * self.period
+        z, v_z, descending = self._vertical(goal, P.get(chi, "p")[2], memory.p_filtered[2],
+                                            memory.v_filtered[2])
+        chi[P.slice("p")] = [*(memory.p_filtered[:2] + goal.offset + memory.offset), z]
+        chi[P.slice("v")] = [*(memory.v_filtered[:2] + catch_up), v_z]
+        for field in ("a", "j", "heading_rate"):
+            chi[P.slice(field)] = 0.0
+        return TargetReason.DESCENDING if descending else TargetReason.OK
+
+    def _restart(self, memory: TargetMemory, p_T, v_T) -> None:
+        """The filters on the predicted target (L Sec. 6.4 Follow) but the velocity from chi, and
+        the offset that puts the reference where chi is."""
+        memory.p_filtered = predict_target(p_T, v_T, self.params.t_prediction)
+        memory.v_filtered = REFERENCE.get(memory.chi, "v").copy()
+        memory.offset = REFERENCE.get(memory.chi, "p")[:2] - memory.p_filtered[:2] \
+            - memory.goal.offset
+        memory.restart = False
+
+    def _vertical(self, goal: TargetGoal, z: float, z_T: float,
+                  v_z_T: float) -> tuple[float, float, bool]:
+        """(height, vertical velocity, descending) of the reference after one period."""
+        rate = goal.descent_rate
+        if rate == 0.0:
+            return z, 0.0, False
+        if goal.height is None:
+            return max(z - rate * self.period, z_T - self.params.press_depth), v_z_T - rate, True
+        step = float(np.clip(z_T + goal.height - z, -rate * self.period, rate * self.period))
+        return z + step, v_z_T + step / self.period, step < 0.0
+
+    def _target_in_frame(self, context, memory: TargetMemory, estimate):
+        """(p_WT, v_WT) in the current estimator frame, or None when not usable."""
+        if not self._target.HasValue(context):
+            return None
+        target = self._target.Eval(context)
+        p_T, v_T = TARGET_ESTIMATE.get(target, "p_WT"), TARGET_ESTIMATE.get(target, "v_WT")
+        if TARGET_ESTIMATE.get(target, "valid") < 0.5 or not (
+                np.all(np.isfinite(p_T)) and np.all(np.isfinite(v_T))):
+            return None
+        counter = TARGET_ESTIMATE.get(target, "frame_counter")
+        if not np.isfinite(memory.frame_counter) or counter == memory.frame_counter:
+            return p_T, v_T
+        if counter == memory.old_frame_counter and estimate is not None:
+            R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
+            return (reexpress_point(p_T, R_OldNew, STATE_ESTIMATE.get(estimate, "p_OldNew")),
+                    R_OldNew.T @ v_T)
+        return None
+
+
+def load_target_tracker_params(filename: str = "target_tracker.yaml") -> TargetTrackerParams:
+    """A path, or a file name in models/; raises ConfigError naming the file and the key."""
+    return load_params(TargetTrackerParams, model_path(filename))
+
+
+def make_target_tracker(params: TargetTrackerParams | None = None) -> TargetTracker:
+    return TargetTracker(params or load_target_tracker_params())
