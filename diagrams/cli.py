@@ -9,7 +9,8 @@ COMMANDS = {
                 "summarized like L Table 1",
     "hover": "arm, take off on a scripted attitude/thrust profile, hover, land (no position "
              "controller)",
-    "fly": "take off, visit waypoints with the landing paper's linear MPC, land",
+    "fly": "take off, fly a trajectory through waypoints (or from a file) on the flight stack's "
+           "trackers and controllers (control manager, UAV manager), land",
     "sysid": "identify the linear model L(11)-(12) from excitation flights or a PX4 log",
     "sim-autopilot": "serve the simulated vehicle in real time as a PX4 autopilot over MAVLink",
     "hil": "fly the onboard diagram against a MAVLink flight controller (real or simulated)",
@@ -74,38 +75,67 @@ def _keep_meshcat_open(args) -> None:
 
 
 def _fly(args) -> int:
-    from alight.diagrams.fly import fly_waypoints, parse_waypoints
+    from alight.diagrams.fly import parse_waypoints
     from alight.diagrams.simulation import make_meshcat
+    from alight.diagrams.uav import (FlightPlan, fly_plan, read_trajectory_file,
+                                     summarize_managed_flight)
+    from alight.systems.params import ConfigError
     try:
-        waypoints = parse_waypoints(args.waypoints)
-    except ValueError as e:
+        plan = _flight_plan(args, parse_waypoints, read_trajectory_file, FlightPlan)
+        stack = _fly_stack(args)
+    except (ValueError, ConfigError) as e:
         print(f"alight fly: {e}", file=sys.stderr)
         return 2
     config = _vehicle_config(args)
-    odometry = log = None
-    if args.estimator != "mocap":
-        from alight.diagrams.estimation import BankOdometry, load_bank_params
-        from alight.systems.params import ConfigError
-        try:
-            params = load_bank_params(args.bank)
-            names = [f.name for f in params.filters]
-            if args.estimator not in ["bank", *names]:
-                raise ConfigError(f"--estimator {args.estimator!r} is not 'mocap', 'bank' or a "
-                                  f"filter of {args.bank}: {names}")
-        except ConfigError as e:
-            print(f"alight fly: {e}", file=sys.stderr)
-            return 2
-        odometry = BankOdometry(params, request=None if args.estimator == "bank"
-                                else args.estimator)
-        log = odometry.log
     meshcat = make_meshcat(args.meshcat, args.record)
-    run = fly_waypoints(config, waypoints, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
-                        record=args.record, realtime_rate=1.0 if args.meshcat else 0.0,
-                        odometry=odometry, log=log)
-    from alight.diagrams.fly import summarize_flight
-    print("\n".join(summarize_flight(run)))
+    run = fly_plan(plan, config, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
+                   record=args.record, realtime_rate=1.0 if args.meshcat else 0.0,
+                   controller=args.controller, tracker=args.tracker, **stack)
+    print("\n".join(summarize_managed_flight(run)))
     _keep_meshcat_open(args)
     return 0
+
+
+def _flight_plan(args, parse_waypoints, read_trajectory_file, FlightPlan):
+    """The --waypoints or --trajectory of `alight fly` as a FlightPlan (ValueError if bad)."""
+    if (args.waypoints is None) == (args.trajectory is None):
+        raise ValueError("give exactly one of --waypoints and --trajectory")
+    if not (args.takeoff_height > 0.0):
+        raise ValueError(f"--takeoff-height must be > 0 m, got {args.takeoff_height}")
+    if args.waypoints is not None:
+        return FlightPlan(waypoints=parse_waypoints(args.waypoints),
+                          takeoff_height=args.takeoff_height, constraints=args.constraints)
+    rows, period = read_trajectory_file(args.trajectory)
+    if period is None:
+        return FlightPlan(waypoints=rows, takeoff_height=args.takeoff_height,
+                          constraints=args.constraints)
+    return FlightPlan(samples=rows, sample_period=period, takeoff_height=args.takeoff_height)
+
+
+def _fly_stack(args) -> dict:
+    """The managed stack's options of `alight fly`: names checked against the YAML lists, the
+    estimator (mocap or the bank), the scheduled controller switches."""
+    from alight.diagrams.control_manager import load_control_manager_config, parse_switch
+    from alight.systems.params import ConfigError
+    config = load_control_manager_config()
+    for option, name, names in (("--controller", args.controller, config.names),
+                                ("--tracker", args.tracker, config.tracker_names)):
+        if name is not None and name not in names:
+            raise ConfigError(f"{option} {name!r} is not one of {names} "
+                              f"(models/control_manager.yaml)")
+    stack = {"schedule": [parse_switch(text, config.names)
+                          for text in args.switch_controller_at]}
+    if args.estimator != "mocap":
+        from alight.diagrams.estimation import BankOdometry, load_bank_params
+        params = load_bank_params(args.bank)
+        names = [f.name for f in params.filters]
+        if args.estimator not in ["bank", *names]:
+            raise ConfigError(f"--estimator {args.estimator!r} is not 'mocap', 'bank' or a "
+                              f"filter of {args.bank}: {names}")
+        odometry = BankOdometry(params, request=None if args.estimator == "bank"
+                                else args.estimator, anchored=False)
+        stack.update(odometry=odometry, log=odometry.log)
+    return stack
 
 
 def _sysid(args) -> int:
@@ -347,8 +377,23 @@ def make_parser() -> argparse.ArgumentParser:
     hover.set_defaults(run=_hover)
     fly = sub.add_parser("fly", help=COMMANDS["fly"], description=COMMANDS["fly"])
     _add_common(fly)
-    fly.add_argument("--waypoints", required=True, metavar="'X,Y,Z; X,Y,Z; ...'",
-                     help="waypoints in W [m], e.g. '0,0,5; 10,0,5; 10,10,3'")
+    fly.add_argument("--waypoints", metavar="'X,Y,Z; X,Y,Z; ...'",
+                     help="waypoints in W [m], e.g. '0,0,5; 10,0,5; 10,10,3': a trajectory "
+                          "through them is generated under the constraint group (M Sec. 6)")
+    fly.add_argument("--trajectory", metavar="FILE.csv",
+                     help="CSV with a header: x,y,z[,heading] waypoints (a trajectory is "
+                          "generated), or t,x,y,z[,heading] samples (flown as they are)")
+    fly.add_argument("--controller", metavar="NAME",
+                     help="the flying controller (models/control_manager.yaml: se3, mpc, "
+                          "linear_mpc, ...; default models/uav_manager.yaml)")
+    fly.add_argument("--tracker", metavar="NAME",
+                     help="the flying tracker (default mpc_tracker)")
+    fly.add_argument("--switch-controller-at", action="append", default=[],
+                     metavar="T:NAME", help="switch to controller NAME at T s (repeatable)")
+    fly.add_argument("--constraints", metavar="GROUP",
+                     help="constraint group of the generated trajectory (slow, medium, fast)")
+    fly.add_argument("--takeoff-height", type=float, default=2.0, metavar="M",
+                     help="take-off height above the start [m] (default 2)")
     fly.add_argument("--estimator", default="mocap", metavar="NAME",
                      help="state estimate: 'mocap' (default), 'bank' (the arbiter chooses) or a "
                           "filter of the bank (requested; the arbiter falls back if unreliable)")

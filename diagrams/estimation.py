@@ -108,23 +108,25 @@ def add_estimator_bank(builder, vehicle, params: BankParams, request: str | None
 
 
 class BankOdometry:
-    """The `odometry` hook of `add_mpc_loop`: adds the bank and returns its estimate in the anchor
-    frame (the linear MPC and the waypoint mission do not re-express on frame switches);
+    """The `odometry` hook of `add_mpc_loop` and `add_managed_onboard`: adds the bank and returns
+    its estimate in the anchor frame (`anchored`: for the linear MPC loop and the waypoint
+    mission, which do not re-express on frame switches), or as the bank outputs it, switching
+    frames (the managed stack re-expresses, M Sec. 3.5);
     `connect_command` feeds the bank the command-derived acceleration (M(53) stand-in);
     `log(builder, loggers)` records `bank_estimate` (active frame) and `bank_status`."""
 
     def __init__(self, params: BankParams | None = None, request: str | None = None,
                  sensors: dict | None = None, mass: float | None = None,
-                 curve: ThrustCurve | None = None):
+                 curve: ThrustCurve | None = None, anchored: bool = True):
         self.params = params or load_bank_params()
-        self.request, self.sensors = request, sensors
+        self.request, self.sensors, self.anchored = request, sensors, anchored
         self._mass, self._curve = mass, curve
         self.bank: Bank | None = None
 
     def __call__(self, builder, vehicle):
         self.bank = add_estimator_bank(builder, vehicle, self.params, self.request, self.sensors)
         self._vehicle = vehicle
-        return self.bank.anchored
+        return self.bank.anchored if self.anchored else self.bank.state_estimate
 
     def connect_command(self, builder, command_port) -> None:
         if self._mass is None:

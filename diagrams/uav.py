@@ -35,12 +35,14 @@ from alight.diagrams.hover import default_run_dir
 from alight.diagrams.run_log import RunLog, RunLoggers, write_run_folder
 from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.diagrams.simulation import evaluate
+from alight.diagrams.visualization import start_recording, write_recording
 from alight.models import model_path
 from alight.systems.mission.uav_manager import (UAV_STATUS, Routine, UavCommand, UavManager,
                                                 UavManagerParams, UavRefusal)
 from alight.systems.control.constraint_manager import (CONSTRAINT_STATUS, ConstraintManager,
                                                        GroupRefusal, make_constraint_manager)
 from alight.systems.params import ConfigError, load_params
+from alight.systems.rotations import tilt_deg
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.trajectory_generation import make_trajectory_generator
@@ -163,25 +165,34 @@ class Mission:
         self.results: list[RoutineResult] = []
         self.run_log: RunLog | None = None
         self.generated = None      # the last trajectory of `fly_through`
+        self._recording = None
 
     @classmethod
     def simulated(cls, vehicle_config: SimVehicleConfig | None = None, seed: int = 0,
-                  run_dir=None, meshcat=None, realtime_rate: float = 0.0, strict: bool = True,
-                  **stack) -> "Mission":
+                  run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
+                  strict: bool = True, log=None, **stack) -> "Mission":
         """The managed stack on the simulated vehicle (`stack`: arguments of
-        `add_managed_onboard`, e.g. odometry, schedule, config)."""
+        `add_managed_onboard`, e.g. odometry, schedule, config, uav_params); `log(builder,
+        loggers)` may add streams; with `meshcat` and `record` (FILE.html) the replay is written
+        on `close`."""
         vehicle_config = vehicle_config or SimVehicleConfig()
         builder = DiagramBuilder()
         vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
         onboard = add_managed_onboard(builder, vehicle, **stack)
+        if log is not None:
+            log(builder, onboard.loggers)
         diagram = builder.Build()
         simulator = Simulator(diagram)
         diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(seed))
         simulator.set_target_realtime_rate(realtime_rate)
+        if meshcat is not None and record is not None:
+            start_recording(meshcat)
         simulator.Initialize()
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir("mission", seed)
-        return cls(diagram, onboard, simulator, run_dir,
-                   {"seed": seed, "vehicle_config": vehicle_config}, strict)
+        mission = cls(diagram, onboard, simulator, run_dir,
+                      {"seed": seed, "vehicle_config": vehicle_config}, strict)
+        mission._recording = (meshcat, record) if meshcat is not None and record else None
+        return mission
 
     # --- routines (M Sec. 7.6) ---------------------------------------------------------------
 
@@ -320,6 +331,11 @@ class Mission:
 
     def close(self) -> RunLog:
         """Writes the run folder (logs of the whole mission) and returns it."""
+        if self._recording is not None:
+            path = write_recording(*self._recording)
+            print(f"Replay written to {path} (open it in a browser; no server needed)",
+                  flush=True)
+            self._recording = None
         if self.run_log is None:
             write_run_folder(self.run_dir, self.onboard.loggers, self.context, {
                 "command": "mission", "duration": self.time, **self.metadata,
@@ -332,3 +348,99 @@ class Mission:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# --- `alight fly` --------------------------------------------------------------------------
+
+def read_trajectory_file(path) -> tuple[np.ndarray, float | None]:
+    """A CSV file with a header: columns x, y, z (and heading) are waypoints a trajectory is
+    generated through (M Sec. 6); with a column t [s, uniformly spaced] the rows are a sampled
+    trajectory flown as it is. Returns (rows [x, y, z, heading], sample period or None);
+    raises ValueError naming the file and what is wrong."""
+    import pandas as pd
+    try:
+        table = pd.read_csv(path, skipinitialspace=True)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: cannot read the trajectory CSV: {e}") from None
+    missing = [c for c in ("x", "y", "z") if c not in table.columns]
+    if missing or len(table) < 1:
+        raise ValueError(f"{path}: a header with columns x, y, z (heading, t optional) and at "
+                         f"least one row is needed; missing {missing}")
+    heading = table["heading"] if "heading" in table.columns else 0.0
+    rows = np.column_stack([table["x"], table["y"], table["z"],
+                            np.broadcast_to(heading, len(table))]).astype(float)
+    if not np.all(np.isfinite(rows)):
+        raise ValueError(f"{path}: every x, y, z, heading must be a finite number")
+    if "t" not in table.columns:
+        return rows, None
+    t = table["t"].to_numpy(float)
+    steps = np.diff(t)
+    if len(t) < 2 or not np.all(np.isfinite(t)) or steps.min() <= 0 \
+            or np.ptp(steps) > 1e-6 * max(1.0, steps.mean()):
+        raise ValueError(f"{path}: column t must be at least two increasing, uniformly "
+                         f"spaced times [s]")
+    return rows, float(steps.mean())
+
+
+@dc.dataclass
+class FlightPlan:
+    """What `alight fly` flies: take off to `takeoff_height`, then through `waypoints` (rows
+    x, y, z(, heading), a generated trajectory) or a sampled trajectory (`samples` every
+    `sample_period` s), then land here."""
+    waypoints: np.ndarray | None = None
+    samples: np.ndarray | None = None
+    sample_period: float | None = None
+    takeoff_height: float = 2.0
+    constraints: str | None = None      # the trajectory's constraint group (M Sec. 7.5)
+
+
+def fly_plan(plan: FlightPlan, vehicle_config: SimVehicleConfig | None = None, seed: int = 0,
+             run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
+             controller: str | None = None, tracker: str | None = None, **stack) -> RunLog:
+    """`alight fly` on the managed stack: take-off, the plan, landing, through the mission API.
+    `controller` / `tracker` replace the UAV manager's flying pair; `stack` as
+    `Mission.simulated` (odometry, schedule, log, ...)."""
+    params = load_uav_manager_params()
+    params = dc.replace(params, flying_controller=controller or params.flying_controller,
+                        flying_tracker=tracker or params.flying_tracker)
+    mission = Mission.simulated(vehicle_config, seed, run_dir, meshcat, record, realtime_rate,
+                                strict=False, uav_params=params, **stack)
+    with mission:
+        if mission.takeoff(plan.takeoff_height):
+            if plan.samples is not None:
+                mission.trajectory(TrackerGoal(plan.samples, 0.0, plan.sample_period))
+            else:
+                mission.fly_through(plan.waypoints, plan.constraints)
+            mission.land()
+        mission.metadata.update({"command": "fly", "plan": plan, "controller":
+                                 params.flying_controller, "tracker": params.flying_tracker})
+    return mission.run_log
+
+
+def summarize_managed_flight(run: RunLog) -> list[str]:
+    """Printed after `alight fly`: each routine's outcome, closest approach to the plan's
+    points, speed, tilt, and the controllers' and trackers' tick times."""
+    p = run.field("ground_truth", "p_WB").to_numpy()
+    plan = run.metadata["plan"]
+    points = np.asarray(plan["waypoints"] if plan["waypoints"] is not None
+                        else plan["samples"], float)[:, :3]
+    if plan["waypoints"] is None:
+        points = points[[0, -1]]
+    closest = [float(np.min(np.linalg.norm(p - w, axis=1))) for w in points]
+    tilt = tilt_deg(run.field("ground_truth", "q_WB").to_numpy())
+    lines = [f"{r['routine']:12s}  " + ("done" if r["done"] else
+                                        f"refused ({r['refusal']})" if r["refusal"] else
+                                        "timed out") + f" after {r['duration']:.1f} s"
+             for r in run.metadata["routines"]]
+    lines += [f"landed and disarmed   {bool(run['fc_status']['armed'].iloc[-1] < 0.5)}"
+              f" after {run['ground_truth']['time'].iloc[-1]:.1f} s",
+              "closest approach      " + ", ".join(f"{d:.2f} m" for d in closest),
+              f"max speed / tilt      "
+              f"{np.linalg.norm(run.field('ground_truth', 'v_WB'), axis=1).max():.2f} m/s / "
+              f"{tilt.max():.1f} deg"]
+    for stream in sorted(s for s in run.streams if s.startswith(("status_", "tracker_status_"))):
+        table = run[stream]
+        busy = table["compute_time"][table["valid"] > 0.5] * 1e3
+        if len(busy) and busy.max() > 0:
+            lines.append(f"{stream + ' tick':34s} mean {busy.mean():.2f} ms, max {busy.max():.2f} ms")
+    return lines + [f"run folder            {run.path}"]

@@ -9,9 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.primitives import ConstantVectorSource
 from scipy.signal import cont2discrete
 
-from alight.diagrams.cli import main
 from alight.diagrams.fly import fly_reference, load_linear_model, load_linear_mpc
-from alight.diagrams.run_log import RunLog
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
                                      STATE_ESTIMATE)
 from alight.systems.control.linear_model import (continuous_model, discretize,
@@ -239,16 +237,3 @@ def test_estimate_jump_soft_constraints_bound_speed_and_tilt(vehicle_config, tmp
         assert tilt < 12.0 + 4.0, f"tilt {tilt:.1f} deg"
     else:
         assert speed > 2.5 and tilt > 16.0  # what the constraints prevent
-
-
-def test_fly_command_visits_a_waypoint_lands_and_refuses_bad_waypoints(tmp_path, capsys):
-    assert main(["fly", "--waypoints", "1,0,2", "--run-dir", str(tmp_path / "run")]) == 0
-    out = capsys.readouterr().out
-    assert "landed and disarmed   True" in out
-    run = RunLog(tmp_path / "run")
-    p = run.field("ground_truth", "p_WB").to_numpy()
-    assert np.linalg.norm(p - [1.0, 0.0, 2.0], axis=1).min() < 0.3  # the acceptance radius
-    assert p[-1, 2] < 0.3 and run["fc_status"]["armed"].iloc[-1] < 0.5
-    assert set(run.streams) >= {"state_estimate", "reference", "controller_status"}
-    assert main(["fly", "--waypoints", "1,0; 2,2,nan"]) == 2
-    assert "waypoints must" in capsys.readouterr().err

@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 from pydrake.systems.primitives import ConstantVectorSource
 
+from alight.diagrams.cli import main
+from alight.diagrams.run_log import RunLog
 from alight.diagrams.uav import Mission, MissionError
 from alight.systems.control.control_manager import FailsafeCause, ManagerMode
 from alight.systems.estimation.frames import FrameSwitch
@@ -107,3 +109,40 @@ def test_state_estimate_loss_in_flight_triggers_the_failsafe_landing(tmp_path):
     v = run.field("ground_truth", "v_WB").to_numpy()
     assert v[:, 2].min() > -3.0                      # a controlled descent (M Sec. 5.10)
     assert true_position(run)[-1, 2] < 0.3           # down
+
+
+def test_fly_command_flies_waypoints_and_a_trajectory_file_and_refuses_bad_input(
+        tmp_path, capsys):
+    """`alight fly` on the managed stack: a generated trajectory through waypoints with the
+    MPC controller and a scheduled switch to SE(3); a sampled trajectory file; bad inputs."""
+    assert main(["fly", "--waypoints", "2,0,2; 2,2,2", "--controller", "mpc",
+                 "--switch-controller-at", "6:se3", "--run-dir", str(tmp_path / "run")]) == 0
+    out = capsys.readouterr().out
+    assert "landed and disarmed   True" in out and "refused" not in out
+    run = RunLog(tmp_path / "run")
+    p = true_position(run)
+    for waypoint in ([2.0, 0.0, 2.0], [2.0, 2.0, 2.0]):
+        assert np.linalg.norm(p - waypoint, axis=1).min() < 0.15
+    assert p[-1, 2] < 0.3 and run["fc_status"]["armed"].iloc[-1] < 0.5
+    active = run["manager_status"].set_index("time")["active"]   # the trajectory: 3.9-7.9 s
+    assert active.loc[4.5:5.9].eq(1.0).all() and active.loc[6.1:7.0].eq(0.0).all()  # mpc, se3
+
+    samples = tmp_path / "line.csv"
+    times = np.arange(0.0, 4.01, 0.1)
+    samples.write_text("t,x,y,z\n" + "\n".join(f"{t:.1f},{0.5 * t:.3f},0,2.5" for t in times))
+    assert main(["fly", "--trajectory", str(samples), "--run-dir", str(tmp_path / "line")]) == 0
+    p = true_position(RunLog(tmp_path / "line"))
+    assert np.linalg.norm(p - [2.0, 0.0, 2.5], axis=1).min() < 0.15
+    capsys.readouterr()
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,x,y\n0,0,0\n")
+    for argv, message in ((["--waypoints", "1,0; 2,2,nan"], "waypoints must"),
+                          (["--trajectory", str(bad)], "columns x, y, z"),
+                          (["--waypoints", "1,0,2", "--controller", "pid"], "--controller"),
+                          (["--waypoints", "1,0,2", "--switch-controller-at", "x:mpc"],
+                           "TIME:NAME"),
+                          (["--waypoints", "1,0,2", "--trajectory", str(samples)],
+                           "exactly one")):
+        assert main(["fly", *argv]) == 2
+        assert message in capsys.readouterr().err

@@ -7,7 +7,12 @@ offboard-loss failsafe: level attitude at the current heading, thrust from the c
 thrust with a vertical-speed loop on the flight controller's own estimate, down at
 `failsafe_descent_speed`; it stays in failsafe until it lands and disarms. The land detector
 (no vertical motion for `land_time` with low thrust, or while the failsafe asks for a descent)
-disarms, as PX4's auto-disarm; arming again needs the arm request to drop and rise.
+disarms, as PX4's auto-disarm; arming again needs the arm request to drop and rise. As PX4's
+land detector, it reports `landed` from arming until take-off is detected (thrust above
+`takeoff_thrust_fraction` of the hover force, or climbing faster than `land_speed`), and again
+after `ground_contact_time` of low thrust without vertical motion (PX4's ground contact): the
+spool-up and the settling on the ground are not flight (consumers that integrate commanded
+accelerations, such as the estimator bank's M(53) stand-in, rely on this).
 """
 import dataclasses as dc
 
@@ -33,6 +38,8 @@ class CommanderParams:
     land_thrust_fraction: float = bounded(0.5, 0.0, 1.0)  # of hover force
     land_speed: float = bounded(0.25, 0.01, 2.0, "m/s")
     land_time: float = bounded(2.0, 0.1, 30.0, "s")       # PX4 COM_DISARM_LAND
+    takeoff_thrust_fraction: float = bounded(0.9, 0.1, 2.0)  # of hover force: airborne above
+    ground_contact_time: float = bounded(0.3, 0.01, 30.0, "s")  # quiet this long: landed
 
 
 def check_command(command: np.ndarray, params: CommanderParams, last_stamp: float,
@@ -62,7 +69,8 @@ def check_command(command: np.ndarray, params: CommanderParams, last_stamp: floa
 # then flags and counters.
 _STATE = [("seen", FC_COMMAND.size), ("held", FC_COMMAND.size), ("accepted_once", 1),
           ("armed", 1), ("arm_released", 1), ("failsafe", 1), ("refused", 1),
-          ("last_refusal", 1), ("land_timer", 1), ("landed", 1), ("setpoint", SETPOINT.size),
+          ("last_refusal", 1), ("land_timer", 1), ("landed", 1), ("airborne", 1),
+          ("setpoint", SETPOINT.size),
           ("status", FC_STATUS.size)]
 
 
@@ -140,6 +148,7 @@ class Commander(LeafSystem):
                 and FC_COMMAND.get(held, "thrust") <= self._p.max_arm_thrust):
             armed = True
             x[L.slice("land_timer")] = 0.0
+            x[L.slice("airborne")] = 0.0
         attitude = self._attitude.Eval(context)
         vz = self._vz.Eval(context)[0]
         if failsafe:
@@ -161,8 +170,12 @@ class Commander(LeafSystem):
         quiet = (low_thrust or failsafe) and abs(vz) < self._p.land_speed
         x[L.slice("land_timer")] = x[L.slice("land_timer")] + self._period if armed and quiet \
             else 0.0
-        landed = (not armed) or x[L.slice("land_timer")][0] >= self._p.land_time
-        if armed and landed:
+        if armed and (force >= self._p.takeoff_thrust_fraction * self._hover_force
+                      or vz > self._p.land_speed):
+            x[L.slice("airborne")] = 1.0
+        landed = (not armed) or x[L.slice("airborne")][0] < 0.5 \
+            or x[L.slice("land_timer")][0] >= min(self._p.ground_contact_time, self._p.land_time)
+        if armed and x[L.slice("land_timer")][0] >= self._p.land_time:
             armed = False
             x[L.slice("arm_released")] = 0.0
             setpoint[SETPOINT.slice("armed")] = 0.0

@@ -248,10 +248,16 @@ class UavManager(LeafSystem):
                 memory.trajectory.samples, estimate))
 
     def _follow_manager(self, memory: UavMemory, mode: float) -> None:
-        if mode in (ManagerMode.ELAND, ManagerMode.FAILSAFE) and memory.phase != Phase.IDLE:
+        """The control manager's emergency landing or failsafe ends the running routine
+        (refusal EMERGENCY, not done); its touchdown disarms."""
+        if mode in (ManagerMode.ELAND, ManagerMode.FAILSAFE, ManagerMode.LANDED) \
+                and memory.phase != Phase.IDLE:
+            if not memory.done:
+                memory.refusal = UavRefusal.EMERGENCY
             memory.phase = Phase.EMERGENCY
-        elif mode == ManagerMode.LANDED and memory.phase != Phase.IDLE:
-            self._disarm(memory)
+        if mode == ManagerMode.LANDED and memory.phase == Phase.EMERGENCY:
+            memory.phase, memory.arm = Phase.IDLE, 0.0
+            memory.landoff = memory.trajectory = memory.speed = None
 
     def _refuse(self, memory: UavMemory, command: UavCommand, reason: UavRefusal) -> None:
         memory.command_id, memory.routine = command.id, command.routine
