@@ -11,9 +11,16 @@ Trajectory generation (M Sec. 6): for seeded random 3-D courses of 10 and 50 way
 max wall clock over the seeds, sub-sectioning to the YAML's max_deviation included) and the flight
 time with per-segment stretching (M Sec. 6) and with uniform rescaling (the baseline of [55]).
 
-    python bench/trackers.py [--seconds 14] [--part all|tracker|trajectory] [--seeds 5]
+The landoff (M Sec. 4.2: a 2 m take-off, then a landing), speed (M Sec. 4.3: a 2 m/s velocity
+step) and target (L Sec. 6.3: a target driving at 3 m/s, followed then descended on) trackers:
+the whole tick as the simulator runs it (wall clock of one 10 ms `AdvanceTo` of the tracker
+alone, Drake's overhead included), next to the MPC tracker's on the medium step for scale.
+
+    python bench/trackers.py [--seconds 14] [--part all|tracker|others|trajectory] [--seeds 5]
                              [--velocity-weight W]
 """
+import time
+
 import argparse
 
 import numpy as np
@@ -24,6 +31,70 @@ from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.mpc_tracker import TrackerReason, make_mpc_tracker
 from alight.systems.tracking.trajectory_generation import (load_trajectory_generation_params,
                                                            make_trajectory_generator)
+
+HOVER = STATE_ESTIMATE.pack(stamp=0.0, p_EB=[0.0, 0.0, 2.0], v_EB=0.0, a_EB=0.0,
+                            q_EB=[1, 0, 0, 0], heading=0.0, heading_rate=0.0, var_pv=0.0,
+                            var_heading=0.0, frame_id=0, frame_counter=0, p_OldNew=0.0,
+                            q_OldNew=[1, 0, 0, 0], valid=1.0)
+
+
+def whole_ticks(dut, goals: list[tuple[float, object]], seconds: float,
+                extra=None) -> np.ndarray:
+    """Wall-clock seconds of each 10 ms tick of tracker `dut` alone, hovering at 2 m, with the
+    goal switched at the given times; `extra(context, t)` sets more inputs each tick."""
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("state_estimate").FixValue(context, HOVER)
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    dut.GetInputPort("last_reference").FixValue(context, np.full(REFERENCE.size, np.nan))
+    simulator = Simulator(dut, context)
+    simulator.Initialize()
+    times, pending = [], sorted(goals, key=lambda item: item[0])
+    for i in range(int(round(seconds / 0.01))):
+        t = i * 0.01
+        while pending and pending[0][0] <= t:
+            dut.GetInputPort("goal").FixValue(context, pending.pop(0)[1])
+        if extra is not None:
+            extra(context, t)
+        start = time.perf_counter()
+        simulator.AdvanceTo(t + 0.01)
+        times.append(time.perf_counter() - start)
+    return np.array(times)
+
+
+def other_trackers(seconds: float) -> None:
+    from alight.diagrams.controllers import load_controllers_config
+    from alight.systems.boundary import TARGET_ESTIMATE
+    from alight.systems.control.force_controller import level_command
+    from alight.systems.tracking.landoff_tracker import LandoffGoal, make_landoff_tracker
+    from alight.systems.tracking.speed_tracker import SpeedGoal, make_speed_tracker
+    from alight.systems.tracking.target_tracker import TargetGoal, make_target_tracker
+    landoff = make_landoff_tracker(load_controllers_config().vehicle)
+
+    def hover_command(context, t):
+        landoff.GetInputPort("last_command").FixValue(
+            context, level_command(t, 0.0, 0.6, 1.0))
+    target = make_target_tracker()
+
+    def driving_target(context, t):
+        target.GetInputPort("target_estimate").FixValue(context, TARGET_ESTIMATE.pack(
+            stamp=t, p_WT=[3.0 * t, 0.0, 0.8], q_WT=[1, 0, 0, 0], v_WT=[3.0, 0.0, 0.0],
+            var_p=0.01, var_rot=0.01, var_v=0.01, last_measurement=t, valid=1.0, keypoints=8,
+            frame_counter=0.0))
+    runs = {
+        "mpc (medium step)": (None, None, None),
+        "landoff": (landoff, [(0.0, LandoffGoal.takeoff(2.0)), (seconds / 2, LandoffGoal.land())],
+                    hover_command),
+        "speed": (make_speed_tracker(), [(0.0, SpeedGoal(height=2.0, velocity=(2.0, 0.0)))],
+                  None),
+        "target": (target, [(0.0, TargetGoal.follow()),
+                            (seconds / 2, TargetGoal(descent_rate=0.5))], driving_target),
+    }
+    print(f"{'tracker':20s}{'mean us':>9s}{'p99 us':>9s}{'max us':>9s}   (whole tick)")
+    for name, (dut, goals, extra) in runs.items():
+        if dut is None:
+            dut, goals = make_mpc_tracker(), [(0.0, TrackerGoal.point([8.0, -6.0, 5.0], 2.0))]
+        us = 1e6 * whole_ticks(dut, goals, seconds, extra)
+        print(f"{name:20s}{us.mean():9.0f}{np.percentile(us, 99):9.0f}{us.max():9.0f}")
 
 
 def tick_times(goal, group: str, seconds: float, p_start) -> tuple[np.ndarray, np.ndarray]:
@@ -87,14 +158,17 @@ def trajectory_generation(seeds: int, velocity_weight: float | None) -> None:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=14.0)
-    parser.add_argument("--part", choices=("all", "tracker", "trajectory"), default="all")
+    parser.add_argument("--part", choices=("all", "tracker", "others", "trajectory"),
+                        default="all")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--velocity-weight", type=float, default=None,
                         help="override the YAML's (0: pure minimum snap)")
     args = parser.parse_args()
     if args.part in ("all", "trajectory"):
         trajectory_generation(args.seeds, args.velocity_weight)
-    if args.part == "trajectory":
+    if args.part in ("all", "others"):
+        other_trackers(args.seconds)
+    if args.part in ("trajectory", "others"):
         return
     t = np.arange(0.0, args.seconds + 3.0, 0.05)
     circle = np.column_stack([3 * np.cos(0.5 * t), 3 * np.sin(0.5 * t), np.full_like(t, 2.0),
