@@ -15,8 +15,9 @@ PERIOD = 0.01
 TOLERANCE = 1.02     # never over the group by more than 2 %
 
 
-def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0)):
-    """The tracker alone, started at rest at the estimate; the references, one per tick."""
+def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0), handed_over=None):
+    """The tracker alone, started at rest at the estimate (or from the `handed_over` reference);
+    the references, one per tick."""
     dut = make_mpc_tracker()
     context = dut.CreateDefaultContext()
     dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.pack(
@@ -24,7 +25,8 @@ def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0)):
         heading_rate=0.0, var_pv=0.0, var_heading=0.0, frame_id=0, frame_counter=0,
         p_OldNew=0.0, q_OldNew=[1, 0, 0, 0], valid=1.0))
     dut.GetInputPort("active").FixValue(context, [1.0])
-    dut.GetInputPort("last_reference").FixValue(context, np.full(REFERENCE.size, np.nan))
+    dut.GetInputPort("last_reference").FixValue(
+        context, np.full(REFERENCE.size, np.nan) if handed_over is None else handed_over)
     dut.GetInputPort("constraint_group").FixValue(context, [dut.group_names.index(group)])
     dut.GetInputPort("goal").FixValue(context, goal)
     simulator = Simulator(dut, context)
@@ -56,10 +58,11 @@ def test_a_step_never_exceeds_the_group_and_settles_without_ringing(group):
     assert ratios.max() <= TOLERANCE, ratios
     assert ratios[0, 0] > 0.95          # and it does use the horizontal speed it is given
     error = np.linalg.norm(references[:, REFERENCE.slice("p")] - goal, axis=1)
-    settled = (np.flatnonzero(error > 0.05).max() + 1) * PERIOD
+    within = error <= 0.05
+    settled = np.argmax(within) * PERIOD
     assert settled < 12.0 if group == "slow" else settled < 6.0
     # no ringing: once within 0.05 m it stays within, and it never passes the goal
-    assert np.all(error[int(settled / PERIOD):] <= 0.05)
+    assert np.all(within[np.argmax(within):])
     along = (references[:, REFERENCE.slice("p")] - [0, 0, 2]) @ (goal - [0, 0, 2]) \
         / np.linalg.norm(goal - [0, 0, 2]) ** 2
     assert along.max() < 1.0 + 0.01
@@ -79,6 +82,51 @@ def test_a_sampled_trajectory_is_followed_within_limits():
     error = np.linalg.norm(references[:, REFERENCE.slice("p")] - wanted[:, :3], axis=1)
     # KNOWN: a catch-up transient of up to ~1.1 m over the first 8 s (see docs/controllers.md)
     assert error[times > 9.0].max() < 0.06, error[times > 9.0].max()
+
+
+def fastest_return(v, a, j, jerk, snap, seconds=4.0, dt=1e-4):
+    """What a start (v, a, j) along an axis forces whatever the plan: the jerk turned toward
+    -jerk as fast as `snap` allows (from below when it starts under -jerk). Returns the peak
+    speed, its time, and the lowest acceleration (the jerk lifted to 0 at `snap`)."""
+    t = np.arange(dt, seconds, dt)
+    jerks = np.maximum(j - snap * t, -jerk) if j >= -jerk else np.minimum(j + snap * t, -jerk)
+    speeds = v + np.cumsum(a + np.cumsum(jerks) * dt) * dt
+    k = np.argmax(speeds)
+    lowest = a - j ** 2 / (2 * snap) if j < 0 else a
+    return max(v, speeds[k]), t[k] if speeds[k] > v else 0.0, lowest
+
+
+@pytest.mark.parametrize("v, a, j", [
+    (1.3, 0.0, 0.0),        # just over slow's speed
+    (2.91, -0.07, 2.61),    # medium's speed, its jerk still lifting the acceleration
+    (2.945, 0.807, -6.5),   # medium's jerk, over slow's: slow's snap lifts it in 0.4 s
+    (2.9, 2.5, 0.0),        # medium's acceleration, over slow's
+])
+def test_a_start_faster_than_the_group_returns_as_fast_as_the_group_allows(v, a, j):
+    """Handed a reference over slow's limits (a group switched, another tracker's), the tracker
+    gets back within them as fast as slow's jerk and snap allow (x axis: 1/sqrt(2) of them,
+    `horizontal_factors`), and no faster: the speed rises no more than the start forces
+    (`fastest_return`, +0.01 m/s), never rises again while over 1.05 m/s, is under it within
+    t_peak + (v_peak - 1 m/s) / 1 m/s^2 + 2 sqrt(A / S) + h (shedding the excess at slow's
+    acceleration, its ramp in and out at slow's snap, a grid step), and the braking is within
+    slow's acceleration or what the start forces (2 %)."""
+    slow = load_constraint_group("slow").horizontal
+    jerk, snap = slow.jerk / np.sqrt(2), slow.snap / np.sqrt(2)
+    handed_over = REFERENCE.pack(stamp=0.0, p=[0.0, 0.0, 2.0], v=[v, 0, 0], a=[a, 0, 0],
+                                 j=[j, 0, 0], heading=0.0, heading_rate=0.0)
+    references = run(TrackerGoal.point([40.0, 0.0, 2.0], 0.0), 6.0, "slow",
+                     handed_over=handed_over)
+    assert np.all(np.isfinite(references))
+    speed = np.linalg.norm(references[:, REFERENCE.slice("v")][:, :2], axis=1)
+    peak, peak_time, lowest = fastest_return(v, a, j, jerk, snap)
+    assert speed.max() <= peak + 0.01
+    over = np.flatnonzero(speed > 1.05 * slow.speed).max()
+    assert np.all(np.diff(speed[np.argmax(speed):over + 2]) <= 1e-6)
+    limit_time = peak_time + (peak - slow.speed) / slow.acceleration \
+        + 2 * np.sqrt(slow.acceleration / snap) + 0.1
+    assert (over + 1) * PERIOD <= limit_time
+    acceleration = references[:, REFERENCE.slice("a")][:, 0]
+    assert acceleration.min() >= 1.02 * min(-slow.acceleration, lowest)
 
 
 def test_a_bad_goal_or_grid_is_refused():

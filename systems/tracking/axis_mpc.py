@@ -18,7 +18,14 @@ grid points the jerk is linear, the acceleration quadratic and the velocity cubi
 bounds are tightened by the largest bulge between grid points (snap h^2/8 on the acceleration,
 jerk h^2/8 on the velocity), so they hold at every instant, not only on the grid. The exact L1
 penalty keeps the slacks at zero whenever the bounds can be met; they keep the QP feasible from a
-start outside them (a hand-over, a group switched to a slower one). The program is built once as a
+start outside them (a hand-over, a group switched to a slower one). A slack prices an excess
+once however long it lasts, but only a plan's first step is played before the axis solves again,
+and that step sheds the excess as fast as the hard snap bound allows (the excess at the first
+steps, the pulled-in goal and the terminal rest all ask for it): in closed loop the vehicle gets
+back within the bounds as fast as the group allows, and no faster (tests/test_mpc_tracker.py
+hands it starts over slow's speed, acceleration and jerk). One slack per step, or the bounds
+relaxed along the fastest return into them, got back no faster there and made OSQP reach
+max_iter more often (docs/controllers.md). The program is built once as a
 Drake MathematicalProgram and solved by one persistent OSQP workspace (`PersistentOsqp`); per
 solve only the goal (a linear cost term) and the bounds change.
 """
