@@ -92,6 +92,7 @@ def add_managed_onboard(builder, vehicle, config: ControlManagerConfig | None = 
     manager = managed.manager
     _connect_groups(builder, groups, estimate, uav, managed)
     builder.Connect(estimate, uav.GetInputPort("state_estimate"))
+    builder.Connect(vehicle.GetOutputPort("fc_status"), uav.GetInputPort("fc_status"))
     builder.Connect(uav.GetOutputPort("arm"), manager.GetInputPort("arm"))
     builder.Connect(uav.GetOutputPort("tracker_request"), manager.GetInputPort("tracker_request"))
     builder.Connect(manager.GetOutputPort("manager_status"), uav.GetInputPort("manager_status"))
@@ -166,6 +167,10 @@ class Mission:
         self.run_log: RunLog | None = None
         self.generated = None      # the last trajectory of `fly_through`
         self._recording = None
+        # How simulated time advances (real-time pacing on a MAVLink vehicle), and what
+        # `close` does first (the final safe command, closing the link).
+        self.advance_to = simulator.AdvanceTo
+        self.closers: list = []
 
     @classmethod
     def simulated(cls, vehicle_config: SimVehicleConfig | None = None, seed: int = 0,
@@ -264,7 +269,7 @@ class Mission:
         return self._group_call(Routine.SET_GAINS, name, "gain_refusal")
 
     def wait(self, seconds: float) -> None:
-        self.simulator.AdvanceTo(self.context.get_time() + seconds)
+        self.advance_to(self.context.get_time() + seconds)
 
     @property
     def time(self) -> float:
@@ -293,7 +298,7 @@ class Mission:
         start = self.time
         status = self.status()
         while self.time - start < timeout:
-            self.simulator.AdvanceTo(self.time + self.step)
+            self.advance_to(self.time + self.step)
             status = self.status()
             if UAV_STATUS.get(status, "command_id") == command.id and (
                     UAV_STATUS.get(status, "done") > 0.5 or UAV_STATUS.get(status, "refusal") > 0):
@@ -330,7 +335,10 @@ class Mission:
         return result
 
     def close(self) -> RunLog:
-        """Writes the run folder (logs of the whole mission) and returns it."""
+        """Runs the closers (MAVLink: the final safe command), writes the run folder (logs of
+        the whole mission) and returns it."""
+        while self.closers:
+            self.metadata.setdefault("closed", []).append(str(self.closers.pop(0)()))
         if self._recording is not None:
             path = write_recording(*self._recording)
             print(f"Replay written to {path} (open it in a browser; no server needed)",

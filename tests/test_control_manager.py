@@ -320,7 +320,7 @@ class TrackerBench(Bench):
         self.context = self.dut.CreateDefaultContext()
         self.simulator = Simulator(self.dut, self.context)
         self.set(state_estimate=estimate([1.0, 2.0, 0.2]), switch_request=[0, 0],
-                 tracker_request=[0, 0], arm=[0.0])
+                 tracker_request=[0, 0], arm=[0.0, 0.0])
         for i in range(len(NAMES)):
             self.command(i, HOVER_THRUST + 0.01 * i)
             self.set(**{f"controller_status_{i}": status_vector(ControllerReason.OK)})
@@ -344,7 +344,12 @@ def test_disarmed_manager_sends_zero_thrust_and_arming_starts_the_initial_pair()
     bench.set(tracker_request=[1, 0])       # selectable while disarmed: used on arming
     bench.run(0.02)
     assert bench.status("tracker") == 0 and bench.trackers_active() == [0, 0]
-    bench.set(arm=[1.0])
+    bench.set(arm=[1.0, 0.0])                # armed at zero thrust (what PX4 arms at)
+    bench.run(0.02)
+    command = bench.output("fc_command")
+    assert FC_COMMAND.get(command, "arm") == 1.0 and FC_COMMAND.get(command, "thrust") == 0.0
+    assert bench.status("mode") == ManagerMode.DISARMED and bench.active() == [0, 0, 0]
+    bench.set(arm=[1.0, 1.0])
     # At the arming tick the initial controller and the selected tracker compute, the
     # controller reading the disarmed command as its last command (it spools up from zero).
     assert bench.active() == [1, 0, 0] and bench.trackers_active() == [1, 0]
@@ -353,7 +358,7 @@ def test_disarmed_manager_sends_zero_thrust_and_arming_starts_the_initial_pair()
     assert bench.status("mode") == ManagerMode.NORMAL
     assert FC_COMMAND.get(bench.output("fc_command"), "thrust") == pytest.approx(HOVER_THRUST)
     assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.0, 2.0, 2.0])
-    bench.set(arm=[0.0])                     # disarm (after landing): zero thrust at once
+    bench.set(arm=[0.0, 0.0])                     # disarm (after landing): zero thrust at once
     bench.run(0.01)
     assert bench.status("mode") == ManagerMode.DISARMED
     assert FC_COMMAND.get(bench.output("fc_command"), "thrust") == 0.0
@@ -361,7 +366,7 @@ def test_disarmed_manager_sends_zero_thrust_and_arming_starts_the_initial_pair()
 
 def test_tracker_switch_is_taken_at_the_tick_and_a_failed_tracker_holds():
     bench = TrackerBench()
-    bench.set(arm=[1.0])
+    bench.set(arm=[1.0, 1.0])
     bench.run(0.05)
     assert bench.trackers_active() == [0, 1]
     assert REFERENCE.get(bench.output("reference"), "p")[2] == pytest.approx(1.0)

@@ -44,10 +44,11 @@ active one computes (`tracker_active_i`), and it starts from the manager's `refe
 reason but INACTIVE = 1) or whose reference is not finite makes the manager hold, like a goal
 outside the safety area. Outside NORMAL mode no tracker is active.
 
-Arming (optional `arm` input, 1 value; unconnected means armed from the start): while it is 0 the
-manager is DISARMED: no controller or tracker is active, the command is level with zero thrust
-and arm 0, the reference holds the estimate; when it turns 1 the manager arms in NORMAL mode with
-the selected controller and tracker, which start from that disarmed command and that reference
+Arming (optional `arm` input [arm, thrust enable]; unconnected means armed from the start): unless
+both are 1 the manager is DISARMED: no controller or tracker is active, the command is level with
+zero thrust and the `arm` flag of the input (the flight controller arms at zero thrust, as PX4
+requires), the reference holds the estimate; when both are 1 the manager flies in NORMAL mode with
+the selected controller and tracker, which start from that zero-thrust command and that reference
 (the controller spools up from zero thrust). A disarm request is obeyed in any mode (the UAV
 manager sends one only once landed).
 """
@@ -72,7 +73,7 @@ class ManagerMode(enum.IntEnum):
     ELAND = 1      # emergency landing on the emergency controller
     FAILSAFE = 2   # the feedforward failsafe controller
     LANDED = 3     # touched down after the emergency landing: disarmed
-    DISARMED = 4   # the `arm` input is 0: nothing active, zero thrust
+    DISARMED = 4   # the `arm` input is not [1, 1]: nothing active, zero thrust
 
 
 class Refusal(enum.IntEnum):
@@ -168,7 +169,7 @@ _STATE = VectorLayout("control_manager_state", [
     ("eland_heading", 1), ("quiet_time", 1), ("issued_p", 3), ("issued_heading", 1),
     ("frame_counter", 1), ("active_since", 1), ("failsafe_cause", 1), ("switches", 1),
     ("control_error", 1), ("estimate_seen", 1), ("tracker", 1), ("tracker_request_id", 1),
-    ("tracker_switches", 1), ("tracker_since", 1)])
+    ("tracker_switches", 1), ("tracker_since", 1), ("arm_flag", 1)])
 
 
 @dc.dataclass
@@ -224,7 +225,7 @@ class ControlManager(LeafSystem):
         self._goal = None if self.trackers else \
             self.DeclareVectorInputPort("goal", REFERENCE.size)
         self._request = self.DeclareVectorInputPort("switch_request", 2)
-        self._arm = self.DeclareVectorInputPort("arm", 1)
+        self._arm = self.DeclareVectorInputPort("arm", 2)
         self._commands = [self.DeclareVectorInputPort(f"fc_command_{i}", FC_COMMAND.size)
                           for i in range(len(names))]
         self._statuses = [self.DeclareVectorInputPort(f"controller_status_{i}",
@@ -246,7 +247,8 @@ class ControlManager(LeafSystem):
                          frame_counter=np.nan, active_since=0.0, failsafe_cause=0, switches=0,
                          control_error=0, estimate_seen=0,
                          tracker=self.trackers.index(initial_tracker) if self.trackers else -1,
-                         tracker_request_id=0, tracker_switches=0, tracker_since=0.0)
+                         tracker_request_id=0, tracker_switches=0, tracker_since=0.0,
+                         arm_flag=1.0)
         self._state = self.DeclareDiscreteState(x0)
         self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
@@ -284,10 +286,11 @@ class ControlManager(LeafSystem):
     def _calc_command(self, context, output):
         x = context.get_discrete_state(self._state).get_value()
         mode = _STATE.get(x, "mode")
-        if mode in (ManagerMode.LANDED, ManagerMode.DISARMED):
-            eta = x[_STATE.slice("eland_heading" if mode == ManagerMode.LANDED
-                                 else "issued_heading")][0]
-            return output.SetFromVector(level_command(context.get_time(), eta, 0.0, 0.0))
+        if mode == ManagerMode.LANDED:
+            return output.SetFromVector(level_command(
+                context.get_time(), _STATE.get(x, "eland_heading"), 0.0, 0.0))
+        if mode == ManagerMode.DISARMED:
+            return output.SetFromVector(self._idle_command(context.get_time(), x))
         command = self._commands[int(x[_STATE.slice("active")][0])].Eval(context)
         if not command_is_usable(command):   # never forward a NaN; the failsafe takes over next
             command = context.get_discrete_state(self._last_command).get_value()
@@ -330,8 +333,8 @@ class ControlManager(LeafSystem):
         discrete_state.set_value(self._state, decision.x)
         x = context.get_discrete_state(self._state).get_value()
         if _STATE.get(x, "mode") == ManagerMode.DISARMED:
-            discrete_state.set_value(self._last_command, level_command(
-                context.get_time(), _STATE.get(x, "issued_heading"), 0.0, 0.0))
+            discrete_state.set_value(self._last_command,
+                                     self._idle_command(context.get_time(), x))
             return
         command = self._commands[int(_STATE.get(x, "active"))].Eval(context)
         if command_is_usable(command):
@@ -394,11 +397,18 @@ class ControlManager(LeafSystem):
         x[S.slice("issued_heading")] = REFERENCE.get(reference, "heading")
         return _Decision(x, reference)
 
+    @staticmethod
+    def _idle_command(now: float, x: np.ndarray) -> np.ndarray:
+        """DISARMED: level, zero thrust, the arm flag asked for."""
+        return level_command(now, _STATE.get(x, "issued_heading"), 0.0, _STATE.get(x, "arm_flag"))
+
     def _follow_arm(self, context, x: np.ndarray, now: float) -> None:
-        """DISARMED while the `arm` input is 0; arming starts NORMAL mode afresh."""
+        """DISARMED unless the `arm` input is [1, 1]; flying starts NORMAL mode afresh."""
         if not self._arm.HasValue(context):
             return
-        armed = bool(self._arm.Eval(context)[0] > 0.5)
+        arm, thrust_enable = self._arm.Eval(context) > 0.5
+        armed = bool(arm and thrust_enable)
+        x[_STATE.slice("arm_flag")] = float(arm)
         disarmed = _STATE.get(x, "mode") == ManagerMode.DISARMED
         if not armed and not disarmed:
             x[_STATE.slice("mode")] = ManagerMode.DISARMED

@@ -27,7 +27,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from alight.systems.boundary import STATE_ESTIMATE, VectorLayout
+from alight.systems.boundary import FC_STATUS, STATE_ESTIMATE, VectorLayout
 from alight.systems.control.control_manager import MANAGER_STATUS, ManagerMode, SafetyArea
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, rotation_matrix
@@ -67,6 +67,7 @@ class UavRefusal(enum.IntEnum):
     OUTSIDE_AREA = 4      # a goal outside the safety area
     UNKNOWN_NAME = 5      # a controller or tracker that is not loaded
     BAD_COMMAND = 6       # a command without the values its routine needs
+    ARMING_DENIED = 7     # the flight controller did not arm within arm_timeout
 
 
 @dc.dataclass(frozen=True)
@@ -106,6 +107,7 @@ class UavManagerParams:
     speed_tracker: str = "speed"
     landing_tracker: str = "landoff"
     landing_controller: str = "mpc"
+    arm_timeout: float = bounded(5.0, 0.1, 60.0, "s")  # take-off: the flight controller arms
     position_tolerance: float = bounded(0.3, 0.01, 10.0, "m")
     speed_tolerance: float = bounded(0.3, 0.01, 10.0, "m/s")
 
@@ -122,6 +124,7 @@ class UavMemory:
     start: float = 0.0
     then_land: bool = False              # land_home / land_at: land once there
     arm: float = 0.0
+    thrust_enable: float = 0.0          # thrust once the flight controller reports armed
     switch_id: int = 0
     switch_index: int = 0
     tracker_id: int = 0
@@ -147,8 +150,9 @@ def reexpress_rows(rows, estimate: np.ndarray) -> np.ndarray:
 class UavManager(LeafSystem):
     """Inputs  `state_estimate` STATE_ESTIMATE; `command` (abstract UavCommand or None);
             `manager_status` MANAGER_STATUS; `landed` (1, optional: the landing tracker's
-            touchdown, 1 once touched down)
-    Outputs `arm` (1) for the control manager; `switch_request` and `tracker_request` (2) [id,
+            touchdown, 1 once touched down); `fc_status` FC_STATUS (optional: take-off waits
+            for the flight controller to report armed before the thrust is enabled)
+    Outputs `arm` (2) [arm, thrust enable] for the control manager; `switch_request` and `tracker_request` (2) [id,
             index]; `trajectory_goal` (TrackerGoal or None), `landoff_goal` (LandoffGoal or
             None), `speed_goal` (SpeedGoal or None); `group_request` (4) for the constraint
             manager (M Sec. 7.5: [id, constraint group, id, gain group]); `uav_status` UAV_STATUS
@@ -174,11 +178,12 @@ class UavManager(LeafSystem):
         self._command = self.DeclareAbstractInputPort("command", AbstractValue.Make(None))
         self._manager = self.DeclareVectorInputPort("manager_status", MANAGER_STATUS.size)
         self._landed = self.DeclareVectorInputPort("landed", 1)
+        self._fc_status = self.DeclareVectorInputPort("fc_status", FC_STATUS.size)
         self._memory = self.DeclareAbstractState(AbstractValue.Make(UavMemory()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
         state = {self.all_state_ticket()}
-        self.DeclareVectorOutputPort("arm", 1, lambda c, o: o.SetFromVector(
-            [self._read(c).arm]), state)
+        self.DeclareVectorOutputPort("arm", 2, lambda c, o: o.SetFromVector(
+            [self._read(c).arm, self._read(c).thrust_enable]), state)
         self.DeclareVectorOutputPort("switch_request", 2, lambda c, o: o.SetFromVector(
             [self._read(c).switch_id, self._read(c).switch_index]), state)
         self.DeclareVectorOutputPort("tracker_request", 2, lambda c, o: o.SetFromVector(
@@ -256,7 +261,7 @@ class UavManager(LeafSystem):
                 memory.refusal = UavRefusal.EMERGENCY
             memory.phase = Phase.EMERGENCY
         if mode == ManagerMode.LANDED and memory.phase == Phase.EMERGENCY:
-            memory.phase, memory.arm = Phase.IDLE, 0.0
+            memory.phase, memory.arm, memory.thrust_enable = Phase.IDLE, 0.0, 0.0
             memory.landoff = memory.trajectory = memory.speed = None
 
     def _refuse(self, memory: UavMemory, command: UavCommand, reason: UavRefusal) -> None:
@@ -330,7 +335,7 @@ class UavManager(LeafSystem):
         memory.home = p.copy()
         memory.target = np.array([p[0], p[1], p[2] + height, heading])
         memory.landoff = LandoffGoal.takeoff(height)
-        memory.phase, memory.arm = Phase.TAKING_OFF, 1.0
+        memory.phase, memory.arm, memory.thrust_enable = Phase.TAKING_OFF, 1.0, 0.0
         self._switch(memory, self.params.takeoff_tracker, self.params.takeoff_controller)
 
     def _begin_flight(self, memory, command, p, heading, now) -> None:
@@ -373,6 +378,8 @@ class UavManager(LeafSystem):
     def _progress(self, context, memory: UavMemory, estimate, now: float) -> None:
         if memory.done or memory.phase == Phase.EMERGENCY:
             return
+        if memory.phase == Phase.TAKING_OFF and memory.thrust_enable < 0.5:
+            return self._arming(context, memory, now)
         if memory.phase == Phase.LANDING:
             landed = self._landed.HasValue(context) and self._landed.Eval(context)[0] > 0.5
             if landed:
@@ -390,6 +397,17 @@ class UavManager(LeafSystem):
         else:
             memory.done = True
 
+    def _arming(self, context, memory: UavMemory, now: float) -> None:
+        """Take-off: armed at zero thrust first; the thrust once the flight controller says
+        armed (at once without `fc_status`)."""
+        armed = not self._fc_status.HasValue(context) or \
+            FC_STATUS.get(self._fc_status.Eval(context), "armed") > 0.5
+        if armed:
+            memory.thrust_enable = 1.0
+        elif now - memory.start > self.params.arm_timeout:
+            self._disarm(memory)
+            memory.done, memory.refusal = False, UavRefusal.ARMING_DENIED
+
     def _reached(self, memory: UavMemory, estimate, now: float) -> bool:
         if memory.trajectory is not None and memory.routine == Routine.TRAJECTORY and \
                 now < memory.trajectory.t_start + memory.trajectory.duration:
@@ -400,5 +418,5 @@ class UavManager(LeafSystem):
                     and np.linalg.norm(v) <= self.params.speed_tolerance)
 
     def _disarm(self, memory: UavMemory) -> None:
-        memory.phase, memory.arm, memory.done = Phase.IDLE, 0.0, True
+        memory.phase, memory.arm, memory.thrust_enable, memory.done = Phase.IDLE, 0.0, 0.0, True
         memory.landoff = memory.trajectory = memory.speed = None

@@ -271,6 +271,7 @@ def reexpress(memory: TrackerMemory, R_OldNew: np.ndarray, p_OldNew: np.ndarray)
     memory.planned[3] -= yaw
     memory.hold[:3] = R_OldNew.T @ (memory.hold[:3] - p_OldNew)
     memory.hold[3] -= yaw
+    memory.direction = (R_OldNew.T @ np.append(memory.direction, 0.0))[:2]
 
 
 def load_mpc_tracker_params(filename: str = "mpc_tracker.yaml") -> MpcTrackerParams:
