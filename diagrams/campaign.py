@@ -25,6 +25,8 @@ class CampaignJob:
     wind_kmh: float | None = None
     gusts: float | None = None
     camera: str | None = None
+    stack: str = "direct"           # run_landing's: direct (linear MPC) or managed
+    controller: str = "linear_mpc"  # the managed stack's controller
 
 
 def scenario_for(job: CampaignJob):
@@ -52,7 +54,8 @@ def run_job(job: CampaignJob) -> dict:
     from alight.diagrams.landing_score import score_landing
     start = time.perf_counter()
     scenario = scenario_for(job)
-    run = run_landing(scenario, seed=job.seed, run_dir=job.run_dir)
+    run = run_landing(scenario, seed=job.seed, run_dir=job.run_dir, stack=job.stack,
+                      controller=job.controller)
     score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
     return {"target_speed_setting": job.target_speed, "seed": job.seed, **dc.asdict(score),
             "wall_time": time.perf_counter() - start, "run_dir": job.run_dir}

@@ -297,6 +297,17 @@ def _land_scenario(args):
                                     getattr(args, "camera", None)))
 
 
+def _check_landing_stack(args) -> None:
+    """--stack / --controller: raises ConfigError naming the allowed controllers."""
+    from alight.diagrams.landing_managed import landing_manager_config
+    from alight.systems.params import ConfigError
+    if args.stack == "managed":
+        landing_manager_config(args.controller)
+    elif args.controller != "linear_mpc":
+        raise ConfigError(f"--controller {args.controller}: the direct stack flies linear_mpc "
+                          f"only (use --stack managed)")
+
+
 def _land(args) -> int:
     from alight.diagrams.hover import default_run_dir
     from alight.diagrams.landing import mission_transitions, run_landing
@@ -304,8 +315,10 @@ def _land(args) -> int:
     from alight.diagrams.landing_score import score_landing
     from alight.diagrams.simulation import make_meshcat
     from alight.systems.params import ConfigError
+    from alight.diagrams.landing_managed import tracker_switches
     try:
         scenario = _land_scenario(args)
+        _check_landing_stack(args)
     except (ConfigError, FileNotFoundError) as e:
         print(f"alight land: {e}", file=sys.stderr)
         return 2
@@ -314,12 +327,17 @@ def _land(args) -> int:
     import time
     start = time.perf_counter()
     run = run_landing(scenario, seed=args.seed, run_dir=run_dir, meshcat=meshcat,
-                      record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
+                      record=args.record, realtime_rate=1.0 if args.meshcat else 0.0,
+                      stack=args.stack, controller=args.controller)
     wall = time.perf_counter() - start
     score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
     for at, mode, reason in mission_transitions(run):
         print(f"  {at:6.2f} s  {mode.name:11s} ({reason.name.lower().replace('_', ' ')})")
-    print(f"{scenario.name} scenario, {scenario.camera} camera, seed {args.seed}:")
+    if args.stack == "managed":
+        print(f"  control manager ({args.controller}): tracker " + ", ".join(
+            f"{name} at {at:.2f} s" for at, name in tracker_switches(run)))
+    print(f"{scenario.name} scenario, {scenario.camera} camera, {args.stack} stack, seed "
+          f"{args.seed}:")
     print("  " + score.row())
     print(f"  plots {plot_mission(run, run.path / 'mission.png')}, "
           f"{plot_paths(run, run.path / 'paths.png')}")
@@ -333,6 +351,7 @@ def _land(args) -> int:
 def _campaign(args) -> int:
     from pathlib import Path
     from alight.diagrams.campaign import campaign_jobs, run_campaign, write_summary
+    from alight.systems.params import ConfigError
     try:
         speeds = [float(v) for v in args.target_speeds.split(",") if v.strip()]
     except ValueError:
@@ -344,8 +363,14 @@ def _campaign(args) -> int:
               file=sys.stderr)
         return 2
     out = Path(args.out)
+    try:
+        _check_landing_stack(args)
+    except ConfigError as e:
+        print(f"alight campaign: {e}", file=sys.stderr)
+        return 2
     jobs = campaign_jobs(out, args.scenario, speeds, args.runs, args.seed, wind_kmh=args.wind,
-                         gusts=args.gusts, camera=args.camera)
+                         gusts=args.gusts, camera=args.camera, stack=args.stack,
+                         controller=args.controller)
     rows = run_campaign(out, jobs, workers=args.workers, scheduler=args.scheduler)
     summary = write_summary(out, rows)
     print(summary.to_string(float_format=lambda v: f"{v:.2f}"))
@@ -362,6 +387,12 @@ def _add_landing_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", choices=["geometric", "rendered"],
                         help="down camera source (default: the scenario's)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random source")
+    parser.add_argument("--stack", choices=["direct", "managed"], default="direct",
+                        help="direct: the mission drives the linear MPC (default); managed: the "
+                             "control manager with the landoff, MPC and target trackers")
+    parser.add_argument("--controller", default="linear_mpc", metavar="NAME",
+                        help="with --stack managed: the control manager's controller that flies "
+                             "(linear_mpc, mpc, se3)")
 
 
 def make_parser() -> argparse.ArgumentParser:

@@ -109,9 +109,33 @@ class LandingOnboard:
     def finished(self, settle_time: float) -> DisarmedAfter:
         """Stop condition: `settle_time` s after the mission landed and the flight controller
         disarmed."""
-        return DisarmedAfter(lambda context: MISSION_STATUS.get(evaluate(
-            self.mission, "mission_status", context), "mode") == Mode.LANDED,
-            self.loop.vehicle, settle_time)
+        return landed_and_disarmed(self.mission, self.loop.vehicle, settle_time)
+
+
+def landed_and_disarmed(mission: LandingMission, vehicle, settle_time: float) -> DisarmedAfter:
+    """Stop condition: `settle_time` s after `mission` landed and `vehicle` disarmed."""
+    return DisarmedAfter(lambda context: MISSION_STATUS.get(evaluate(
+        mission, "mission_status", context), "mode") == Mode.LANDED, vehicle, settle_time)
+
+
+def add_down_camera_perception(builder: DiagramBuilder, scenario: LandingScenario, vehicle,
+                               state_estimate) -> TargetPerceptionPorts:
+    """Target perception on `vehicle`'s `down_image` with the scenario's camera blackouts."""
+    image = vehicle.GetOutputPort("down_image")
+    if scenario.camera_blackouts:
+        blackout = builder.AddNamedSystem("camera_blackout",
+                                          CameraBlackout(scenario.camera_blackouts))
+        builder.Connect(image, blackout.get_input_port())
+        image = blackout.get_output_port()
+    return add_target_perception(builder, image, state_estimate)
+
+
+def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: LandingMission,
+                        target_estimate, period: float) -> None:
+    """The mission's status and the target estimate, at the mission's `period`."""
+    loggers.add(builder, "mission_status", mission.GetOutputPort("mission_status"),
+                MISSION_STATUS, period=period)
+    loggers.add(builder, "target_estimate", target_estimate, TARGET_ESTIMATE, period=period)
 
 
 def add_landing_onboard(builder: DiagramBuilder, scenario: LandingScenario, vehicle,
@@ -124,20 +148,12 @@ def add_landing_onboard(builder: DiagramBuilder, scenario: LandingScenario, vehi
     loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
                            mission.GetOutputPort("arm"), odometry=odometry,
                            mpc_params=load_linear_mpc(scenario.mpc))
-    image = vehicle.GetOutputPort("down_image")
-    if scenario.camera_blackouts:
-        blackout = builder.AddNamedSystem("camera_blackout",
-                                          CameraBlackout(scenario.camera_blackouts))
-        builder.Connect(image, blackout.get_input_port())
-        image = blackout.get_output_port()
-    perception = add_target_perception(builder, image, loop.state_estimate_port)
+    perception = add_down_camera_perception(builder, scenario, vehicle, loop.state_estimate_port)
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))
     builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
     loggers = add_mpc_logging(builder, loop, mission.GetOutputPort("reference"))
-    loggers.add(builder, "mission_status", mission.GetOutputPort("mission_status"),
-                MISSION_STATUS, period=scenario.mission.period)
-    loggers.add(builder, "target_estimate", perception.target_estimate, TARGET_ESTIMATE,
-                period=scenario.mission.period)
+    add_mission_logging(builder, loggers, mission, perception.target_estimate,
+                        scenario.mission.period)
     return LandingOnboard(mission, loop, perception, loggers)
 
 
@@ -149,19 +165,35 @@ def build_landing(builder: DiagramBuilder, scenario: LandingScenario, meshcat=No
     return config, add_landing_onboard(builder, scenario, vehicle, odometry)
 
 
+STACKS = ("direct", "managed")   # the mission drives the linear MPC / the control manager
+
+
 def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=None,
-                record=None, realtime_rate: float = 0.0, odometry=None) -> RunLog:
+                record=None, realtime_rate: float = 0.0, odometry=None, stack: str = "direct",
+                controller: str = "linear_mpc") -> RunLog:
     """Flies one landing mission; stops `settle_time` after the disarm (or at `max_duration`) and
-    writes the run folder (streams, metadata with the scenario)."""
+    writes the run folder (streams, metadata with the scenario). `stack` "direct": the mission
+    drives the linear MPC (`add_landing_onboard`); "managed": the control manager with its
+    trackers and `controller` (diagrams/landing_managed.py, issue 11)."""
+    if stack not in STACKS:
+        raise ValueError(f"landing stack {stack!r}: expected one of {list(STACKS)}")
+    if stack == "direct" and controller != "linear_mpc":
+        raise ValueError(f"controller {controller!r}: the direct stack flies linear_mpc only; "
+                         f"use stack 'managed'")
     builder = DiagramBuilder()
-    config, onboard = build_landing(builder, scenario, meshcat, odometry)
+    if stack == "managed":
+        from alight.diagrams.landing_managed import build_landing_managed
+        config, onboard = build_landing_managed(builder, scenario, meshcat, odometry, controller)
+    else:
+        config, onboard = build_landing(builder, scenario, meshcat, odometry)
     diagram = builder.Build()
     simulator = simulate(diagram, scenario.max_duration, seed, meshcat, record, realtime_rate,
                          stop_when=onboard.finished(scenario.settle_time))
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("land", seed)
     write_run_folder(run_dir, onboard.loggers, simulator.get_context(), {
         "command": "land", "seed": seed, "duration": simulator.get_context().get_time(),
-        "scenario": scenario, "config": config})
+        "scenario": scenario, "config": config, "stack": stack, "controller": controller,
+        "trackers": list(onboard.managed.trackers) if stack == "managed" else []})
     return RunLog(run_dir)
 
 

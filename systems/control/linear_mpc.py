@@ -73,11 +73,13 @@ MPC_DISTURBANCE = VectorLayout("mpc_disturbance", [("d_W", 3)])  # the `disturba
 
 
 class MpcReason(enum.IntEnum):
+    """The codes of ControllerReason (force_controller.py) where they mean the same: the control
+    manager reads INACTIVE = 1 as "not computed yet", also between this 20 Hz MPC's ticks."""
     OK = 0
-    FALLBACK = 1        # solver failed: the previous solution's next input was used once
-    SOLVER_FAILED = 2   # failed again: the command is a safe level hover, not to be flown
-    INACTIVE = 3
-    BAD_ESTIMATE = 4
+    INACTIVE = 1
+    BAD_ESTIMATE = 2
+    FALLBACK = 4        # solver failed: the previous solution's next input was used once
+    SOLVER_FAILED = 5   # failed again: the command is a safe level hover, not to be flown
 
 
 def prediction_matrices(Ad: np.ndarray, Bd: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:

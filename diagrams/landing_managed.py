@@ -1,0 +1,125 @@
+"""The landing mission (L Sec. 6.4) on the managed flight stack (M Sec. 7.2, issue 11):
+odometry -> target perception -> the landing mission state machine, unchanged, whose mode and arm
+request `LandingRequests` turns into the control manager's tracker requests and goals: take-off
+with the landoff tracker (M Sec. 4.2), the waypoint with the MPC tracker (M Sec. 4.1), Follow
+and Landing Phases 1/2 with the target tracker (the L Sec. 6.3 reference generator), flown by one
+controller of the control manager (the landing paper's `linear_mpc` by default, or `mpc`,
+`se3`); the mission's arm request [arm, thrust enable] is the control manager's `arm` input
+(Landed disarms).
+
+`alight land --stack managed [--controller NAME]` runs it (diagrams/landing.py `run_landing`).
+"""
+import dataclasses as dc
+
+from pydrake.systems.framework import DiagramBuilder
+
+from alight.diagrams.control_manager import (ControlManagerConfig, ManagedControllers,
+                                             add_control_manager, add_managed_logging,
+                                             load_control_manager_config)
+from alight.diagrams.controllers import load_controllers_config
+from alight.diagrams.fly import mocap_odometry
+from alight.diagrams.landing import (LandingScenario, add_down_camera_perception,
+                                     add_mission_logging, landed_and_disarmed, vehicle_config)
+from alight.diagrams.perception import TargetPerceptionPorts
+from alight.diagrams.run_log import RunLog, RunLoggers
+from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.simulation import DisarmedAfter
+from alight.systems.mission.landing import LandingMission
+from alight.systems.mission.landing_requests import LandingRequests
+from alight.systems.params import ConfigError
+
+
+# The trackers LandingRequests asks for: take-off, waypoint, target (its defaults).
+LANDING_TRACKERS = ("landoff", "mpc_tracker", "target")
+
+
+@dc.dataclass
+class LandingManagedOnboard:
+    """Handles to the stack built by `add_landing_managed`."""
+    vehicle: object
+    state_estimate: object
+    mission: LandingMission
+    requests: LandingRequests
+    managed: ManagedControllers
+    perception: TargetPerceptionPorts
+    loggers: RunLoggers
+
+    def finished(self, settle_time: float) -> DisarmedAfter:
+        """Stop condition: `settle_time` s after the mission landed and the vehicle disarmed."""
+        return landed_and_disarmed(self.mission, self.vehicle, settle_time)
+
+
+def landing_manager_config(controller: str = "linear_mpc",
+                           config: ControlManagerConfig | None = None) -> ControlManagerConfig:
+    """The control manager's YAML (models/control_manager.yaml) flying `controller` from the
+    start with the take-off tracker selected; raises ConfigError when `controller` is not one of
+    the listed controllers or the trackers of `LandingRequests` are not listed."""
+    config = config or load_control_manager_config()
+    if controller not in config.names or controller == config.failsafe_controller:
+        allowed = [name for name in config.names if name != config.failsafe_controller]
+        raise ConfigError(f"landing controller {controller!r} is not one of the control "
+                          f"manager's controllers {allowed}")
+    missing = [name for name in LANDING_TRACKERS if name not in config.tracker_names]
+    if missing:
+        raise ConfigError(f"control manager trackers {config.tracker_names}: the landing "
+                          f"mission needs {missing} too")
+    return dc.replace(config, initial_controller=controller,
+                      initial_tracker=LANDING_TRACKERS[0])
+
+
+def add_landing_managed(builder: DiagramBuilder, scenario: LandingScenario, vehicle,
+                        odometry=None, controller: str = "linear_mpc",
+                        config: ControlManagerConfig | None = None) -> LandingManagedOnboard:
+    """The landing mission on the managed stack, on `vehicle`'s boundary ports (simulated or
+    MAVLink). `odometry` as in diagrams/fly.py `add_mpc_control` (default mocap); the linear
+    MPC takes the scenario's tuning (`scenario.mpc`)."""
+    config = landing_manager_config(controller, config)
+    controllers_config = dc.replace(load_controllers_config(config.controllers_file),
+                                    linear_mpc=scenario.mpc)
+    estimate = (odometry or mocap_odometry())(builder, vehicle)
+    perception = add_down_camera_perception(builder, scenario, vehicle, estimate)
+    mission = builder.AddNamedSystem("mission", LandingMission(scenario.mission))
+    builder.Connect(estimate, mission.GetInputPort("state_estimate"))
+    builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
+    requests = builder.AddNamedSystem("landing_requests", LandingRequests(
+        scenario.mission, config.tracker_names, *LANDING_TRACKERS))
+    builder.Connect(mission.GetOutputPort("mission_status"),
+                    requests.GetInputPort("mission_status"))
+    builder.Connect(mission.GetOutputPort("arm"), requests.GetInputPort("arm"))
+    goals = {kind: requests.GetOutputPort(f"{kind}_goal")
+             for kind in ("trajectory", "landoff", "target")}
+    managed = add_control_manager(builder, config, controllers_config, estimate, goals=goals,
+                                  fc_attitude=vehicle.GetOutputPort("fc_attitude"),
+                                  target_estimate=perception.target_estimate)
+    manager = managed.manager
+    builder.Connect(mission.GetOutputPort("arm"), manager.GetInputPort("arm"))
+    builder.Connect(requests.GetOutputPort("tracker_request"),
+                    manager.GetInputPort("tracker_request"))
+    builder.Connect(manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    if hasattr(odometry, "connect_command"):  # e.g. the estimator bank's acceleration input
+        odometry.connect_command(builder, manager.GetOutputPort("fc_command"))
+    # "goal": the mission's own L Sec. 6.3 reference, beside the issued one ("reference").
+    loggers = add_managed_logging(builder, vehicle, managed, estimate,
+                                  mission.GetOutputPort("reference"), config.period)
+    add_mission_logging(builder, loggers, mission, perception.target_estimate,
+                        scenario.mission.period)
+    return LandingManagedOnboard(vehicle, estimate, mission, requests, managed, perception,
+                                 loggers)
+
+
+def tracker_switches(run: RunLog) -> list[tuple[float, str]]:
+    """The control manager's active tracker over a managed landing run: (time [s], name) at the
+    start and at every switch (`manager_status`; names from the run's metadata)."""
+    names = run.metadata["trackers"]
+    status = run["manager_status"]
+    changed = status[status["tracker_switches"].diff().fillna(1.0) != 0]
+    return [(float(row["time"]), names[int(row["tracker"])]) for _, row in changed.iterrows()]
+
+
+def build_landing_managed(builder: DiagramBuilder, scenario: LandingScenario, meshcat=None,
+                          odometry=None, controller: str = "linear_mpc"
+                          ) -> tuple[SimVehicleConfig, LandingManagedOnboard]:
+    """The simulated vehicle in the scenario's world with the managed landing stack on it."""
+    config = vehicle_config(scenario)
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
+    return config, add_landing_managed(builder, scenario, vehicle, odometry, controller)

@@ -1,0 +1,104 @@
+"""The landing mission on the managed stack (issue 11): the mission state machine (L Sec. 6.4)
+drives the control manager (M Sec. 7.2) through `LandingRequests`; a seeded landing at 2 m/s with
+`alight land --stack managed` succeeds judged by the physics, and its modes are flown by the
+trackers the control manager switches to (landoff, MPC tracker, target tracker) on linear_mpc."""
+import numpy as np
+import pytest
+
+from alight.diagrams.cli import main
+from alight.diagrams.landing import load_scenario, mission_transitions
+from alight.diagrams.landing_managed import landing_manager_config, tracker_switches
+from alight.diagrams.landing_score import score_landing
+from alight.diagrams.run_log import RunLog
+from alight.systems.control.control_manager import ManagerMode
+from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode
+from alight.systems.mission.landing_requests import LandingRequests
+from alight.systems.params import ConfigError
+from alight.systems.tracking.landoff_tracker import LandoffGoal
+from alight.systems.tracking.target_tracker import TargetGoal
+
+SPEED = 2.0  # m/s
+TRACKERS = ["mpc_tracker", "landoff", "speed", "target"]
+
+
+@pytest.fixture(scope="module")
+def landing(tmp_path_factory):
+    """`alight land --stack managed --target-speed 2 --seed 0` (exit status 0: landed)."""
+    run_dir = tmp_path_factory.mktemp("land_managed") / "run"
+    status = main(["land", "--stack", "managed", "--target-speed", str(SPEED), "--seed", "0",
+                   "--run-dir", str(run_dir)])
+    return status, RunLog(run_dir)
+
+
+def test_seeded_managed_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
+    status, run = landing
+    assert status == 0
+    scenario = load_scenario("field")
+    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
+    assert score.success, score.row()
+    assert score.e_xy < 0.5                      # L Table 1: 2.5 - 45.8 cm when landed
+    assert 2.0 < score.tracking_duration < 15.0  # L Table 1: 4.8 - 7.7 s
+    assert score.target_speed == pytest.approx(SPEED, abs=0.6)
+    assert run.metadata["stack"] == "managed" and run.metadata["controller"] == "linear_mpc"
+
+
+def test_the_modes_are_flown_by_the_trackers_the_control_manager_switches_to(landing):
+    """Taking Off: landoff; Waypoint: MPC tracker; Follow and the landing phases: target tracker;
+    each switch within a mission tick (+ the manager's) of the mode change; linear_mpc flies
+    throughout, no emergency or failsafe; Landed disarms through the manager."""
+    _, run = landing
+    modes = {mode: at for at, mode, _ in reversed(mission_transitions(run))}   # first of each
+    switches = tracker_switches(run)
+    assert [name for _, name in switches] == ["landoff", "mpc_tracker", "target"]
+    for (at, _), mode in zip(switches[1:], (Mode.WAYPOINT, Mode.FOLLOW)):
+        assert at == pytest.approx(modes[mode], abs=0.06)
+    status = run["manager_status"]
+    flying = status[(status["mode"] == ManagerMode.NORMAL) & (status["time"] > 0.0)]
+    assert set(flying["active"]) == {3.0}                      # linear_mpc (4th in the YAML)
+    assert flying["time"].iloc[0] == pytest.approx(modes[Mode.TAKING_OFF] + 0.5, abs=0.06)
+    assert not status["mode"].isin([ManagerMode.ELAND, ManagerMode.FAILSAFE]).any()
+    assert status["control_error"].max() < 2.0                 # under the emergency threshold
+    landed_at = modes[Mode.LANDED]
+    assert status["mode"][status["time"] > landed_at + 0.06].eq(ManagerMode.DISARMED).all()
+    fc = run["fc_status"]
+    assert fc["armed"][fc["time"] > landed_at + 0.5].max() == 0.0
+    # The descent is the target tracker's: the issued reference goes down in the landing phases.
+    reference = run["reference"]
+    p2 = reference[(reference["time"] > modes[Mode.LANDING_P2])
+                   & (reference["time"] < landed_at - 0.1)]          # logged up to 0.05 s late
+    assert len(p2) > 50 and p2["v_2"].max() < -1.5                  # descending_p2 1.8 m/s
+
+
+def _requests_at(dut, mode: Mode, transitions: int, arm=(1.0, 1.0)):
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("mission_status").FixValue(context, MISSION_STATUS.pack(
+        mode=mode, reason=0, transition_time=0.0, transitions=transitions,
+        first_detection=np.nan, last_detection=np.nan, e_xy=np.nan))
+    dut.GetInputPort("arm").FixValue(context, list(arm))
+    return {port: dut.GetOutputPort(port).Eval(context) for port in
+            ("tracker_request", "trajectory_goal", "landoff_goal", "target_goal")}
+
+
+def test_requests_map_the_mission_modes_to_trackers_and_goals():
+    params = LandingMissionParams()
+    dut = LandingRequests(params, TRACKERS)
+    idle = _requests_at(dut, Mode.IDLE, 0, arm=(0.0, 0.0))
+    np.testing.assert_array_equal(idle["tracker_request"], [1.0, 1.0])      # landoff
+    assert idle["landoff_goal"] is None
+    assert _requests_at(dut, Mode.TAKING_OFF, 1, arm=(1.0, 0.0))["landoff_goal"] is None
+    takeoff = _requests_at(dut, Mode.TAKING_OFF, 1)
+    assert takeoff["landoff_goal"] == LandoffGoal.takeoff(params.takeoff_height)
+    waypoint = _requests_at(dut, Mode.WAYPOINT, 2)
+    np.testing.assert_array_equal(waypoint["tracker_request"], [3.0, 0.0])  # mpc_tracker
+    np.testing.assert_array_equal(waypoint["trajectory_goal"].samples[0, :3], params.waypoint)
+    for mode, goal in ((Mode.FOLLOW, TargetGoal.follow()),
+                       (Mode.LANDING_P1, TargetGoal.descend(params.descending_p1)),
+                       (Mode.LANDING_P2, TargetGoal.descend(params.descending_p2))):
+        out = _requests_at(dut, mode, 5)
+        np.testing.assert_array_equal(out["tracker_request"], [6.0, 3.0])   # target
+        assert out["target_goal"] == goal
+    assert _requests_at(dut, Mode.WAYPOINT, 2)["target_goal"] is None
+    with pytest.raises(ValueError, match="target_tracker 'landing'"):
+        LandingRequests(params, TRACKERS, target_tracker="landing")
+    with pytest.raises(ConfigError, match="failsafe"):
+        landing_manager_config("failsafe")
