@@ -100,24 +100,13 @@ def load_control_manager_config(filename: str = "control_manager.yaml") -> Contr
 
 
 def check_control_manager_config(config: ControlManagerConfig, source: str = "<config>"):
-    names = config.names
-    if not names or len(set(names)) != len(names) or "" in names:
-        raise ConfigError(f"{source}: key 'controllers' needs unique, non-empty names: {names}")
-    for entry in config.controllers:
-        if not entry.factory and entry.name not in CONTROLLERS:
-            raise ConfigError(f"{source}: key 'controllers': {entry.name!r} is not a built-in "
-                              f"controller {list(CONTROLLERS)} and has no factory")
+    names = _check_entries(source, "controllers", config.controllers, CONTROLLERS)
     for key in ("initial_controller", "failsafe_controller", "emergency_controller"):
         if getattr(config, key) not in names:
             raise ConfigError(f"{source}: key '{key}' = {getattr(config, key)!r} is not one of "
                               f"the listed controllers {names}")
-    trackers = config.tracker_names
-    if not trackers or len(set(trackers)) != len(trackers) or "" in trackers:
-        raise ConfigError(f"{source}: key 'trackers' needs unique, non-empty names: {trackers}")
+    trackers = _check_entries(source, "trackers", config.trackers, TRACKERS)
     for entry in config.trackers:
-        if not entry.factory and entry.name not in TRACKERS:
-            raise ConfigError(f"{source}: key 'trackers': {entry.name!r} is not a built-in "
-                              f"tracker {list(TRACKERS)} and has no factory")
         if entry.goal_kind not in GOAL_KINDS:
             raise ConfigError(f"{source}: key 'trackers': {entry.name!r} has goal "
                               f"{entry.goal!r}, expected one of {list(GOAL_KINDS)}")
@@ -128,6 +117,18 @@ def check_control_manager_config(config: ControlManagerConfig, source: str = "<c
         config.safety_area.validate()
     except ValueError as e:
         raise ConfigError(f"{source}: {e}") from None
+
+
+def _check_entries(source: str, key: str, entries, builtins) -> list[str]:
+    """The names of a YAML list of controllers or trackers: unique, built-in or with a factory."""
+    names = [entry.name for entry in entries]
+    if not names or len(set(names)) != len(names) or "" in names:
+        raise ConfigError(f"{source}: key '{key}' needs unique, non-empty names: {names}")
+    for entry in entries:
+        if not entry.factory and entry.name not in builtins:
+            raise ConfigError(f"{source}: key '{key}': {entry.name!r} is not a built-in "
+                              f"{key[:-1]} {list(builtins)} and has no factory")
+    return names
 
 
 def build_controller(entry: ControllerEntry, controllers_config: ControllersConfig):
