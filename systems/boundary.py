@@ -22,22 +22,33 @@ class VectorLayout:
             self._slices[field] = slice(start, start + size)
             start += size
         self.size = start
+        # get(): the index of a one-element field (a scalar), the slice of the others.
+        self._items = {field: self._slices[field].start if size == 1 else self._slices[field]
+                       for field, size in self.fields}
+        self._required = frozenset(f for f, _ in self.fields) - set(self.defaults)
 
     def slice(self, field: str) -> slice:
         return self._slices[field]
 
     def get(self, vector, field: str):
-        value = np.asarray(vector)[self._slices[field]]
+        vector = np.asarray(vector)
+        if vector.ndim == 1:
+            return vector[self._items[field]]
+        value = vector[self._slices[field]]
         return value[0] if value.size == 1 else value
 
     def pack(self, **values) -> np.ndarray:
         """A vector from every field by name (missing fields without a default are an error)."""
-        missing = {f for f, _ in self.fields} - set(values) - set(self.defaults)
-        if missing:
+        if not self._required.issubset(values):
+            missing = self._required - set(values)
             raise ValueError(f"{self.name}: missing fields {sorted(missing)}")
         vector = np.zeros(self.size)
-        for field, value in {**self.defaults, **values}.items():
-            vector[self._slices[field]] = value
+        slices = self._slices
+        for field, value in self.defaults.items():
+            if field not in values:
+                vector[slices[field]] = value
+        for field, value in values.items():
+            vector[slices[field]] = value
         return vector
 
     def names(self) -> list[str]:
@@ -131,6 +142,16 @@ class ImuSamples:
 
     def __len__(self) -> int:
         return len(self.seq)
+
+    def __post_init__(self):
+        for array in (self.seq, self.t, self.accel, self.gyro):
+            if isinstance(array, np.ndarray):
+                array.flags.writeable = False  # immutable, so that copies may share it
+
+    def __deepcopy__(self, memo) -> "ImuSamples":
+        """Itself: a frozen value with read-only arrays. Drake clones abstract port and state
+        values (copy.deepcopy) several times per IMU sample; sharing makes that free."""
+        return self
 
 
 @dc.dataclass(frozen=True)

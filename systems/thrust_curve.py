@@ -27,11 +27,12 @@ class ThrustCurve:
 
     def thrust(self, force):
         """M(32): normalized thrust for a thrust force [N] (clipped to [0, 1])."""
-        return np.clip(self.a_t * np.sqrt(np.maximum(force, 0.0)) + self.b_t, 0.0, 1.0)
+        return np.minimum(np.maximum(self.a_t * np.sqrt(np.maximum(force, 0.0)) + self.b_t, 0.0),
+                          1.0)
 
     def force(self, thrust):
         """Inverse of M(32): thrust force [N] for a normalized thrust in [0, 1]."""
-        root = (np.clip(thrust, 0.0, 1.0) - self.b_t) / self.a_t
+        root = (np.minimum(np.maximum(thrust, 0.0), 1.0) - self.b_t) / self.a_t
         return root * root
 
     def apparent_mass(self, thrust, g: float = GRAVITY):

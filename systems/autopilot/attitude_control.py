@@ -6,6 +6,7 @@ vector part of the error quaternion gives the rate setpoint, clipped to the rate
 In rates+thrust mode the commanded body rates pass through (clipped).
 """
 import dataclasses as dc
+import math
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -13,8 +14,7 @@ from pydrake.systems.framework import LeafSystem
 from alight.systems.autopilot.setpoint import SETPOINT
 from alight.systems.boundary import FC_ATTITUDE, CommandMode
 from alight.systems.params import bounded
-from alight.systems.rotations import (conjugate, quaternion_product, rotation_between,
-                                      rotation_matrix)
+from alight.systems.rotations import conjugate, quaternion_product, rotation_between
 
 
 @dc.dataclass
@@ -26,22 +26,30 @@ class AttitudeControlParams:
 
 def attitude_rate_setpoint(q_WB: np.ndarray, q_WD: np.ndarray, params: AttitudeControlParams):
     """Body-rate setpoint [rad/s, in B] that turns the estimated attitude toward the desired one."""
-    q_WB = q_WB / np.linalg.norm(q_WB)
-    q_WD = q_WD / np.linalg.norm(q_WD)
-    z_B = rotation_matrix(q_WB)[:, 2]
-    z_D = rotation_matrix(q_WD)[:, 2]
+    q_WB = q_WB / math.sqrt(q_WB @ q_WB)
+    q_WD = q_WD / math.sqrt(q_WD @ q_WD)
+    z_B = _z_axis(q_WB)
+    z_D = _z_axis(q_WD)
     q_reduced = quaternion_product(rotation_between(z_B, z_D), q_WB)  # tilt corrected only
     q_mix = quaternion_product(conjugate(q_reduced), q_WD)            # remaining rotation (yaw)
-    q_mix *= np.sign(q_mix[0]) if q_mix[0] != 0 else 1.0
-    w_mix = np.clip(q_mix[0], -1.0, 1.0)
-    z_mix = np.clip(q_mix[3], -1.0, 1.0)
-    q_mix = np.array([np.cos(params.yaw_weight * np.arccos(w_mix)), 0.0, 0.0,
-                      np.sin(params.yaw_weight * np.arcsin(z_mix))])
+    if q_mix[0] < 0:
+        q_mix = -q_mix
+    w_mix = min(max(float(q_mix[0]), -1.0), 1.0)
+    z_mix = min(max(float(q_mix[3]), -1.0), 1.0)
+    q_mix = np.array([math.cos(params.yaw_weight * math.acos(w_mix)), 0.0, 0.0,
+                      math.sin(params.yaw_weight * math.asin(z_mix))])
     q_target = quaternion_product(q_reduced, q_mix)
     q_error = quaternion_product(conjugate(q_WB), q_target)
-    rate = 2.0 * np.sign(q_error[0] if q_error[0] != 0 else 1.0) * q_error[1:] \
-        * np.asarray(params.gain)
-    return np.clip(rate, -np.asarray(params.max_rate), params.max_rate)
+    sign = -2.0 if q_error[0] < 0 else 2.0
+    max_rate = params.max_rate
+    return np.array([min(max(sign * float(q_error[i + 1]) * params.gain[i], -max_rate[i]),
+                         max_rate[i]) for i in range(3)])
+
+
+def _z_axis(q: np.ndarray) -> np.ndarray:
+    """The third column of rotation_matrix(q) for a unit quaternion q = (w, x, y, z)."""
+    w, x, y, z = q.tolist()
+    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
 
 
 class AttitudeController(LeafSystem):
@@ -53,6 +61,8 @@ class AttitudeController(LeafSystem):
     def __init__(self, params: AttitudeControlParams):
         super().__init__()
         self._params = params
+        self._max_rate = np.asarray(params.max_rate, float)
+        self._min_rate = -self._max_rate
         self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self.DeclareVectorOutputPort("rate_setpoint", 3, self._calc)
@@ -60,8 +70,8 @@ class AttitudeController(LeafSystem):
     def _calc(self, context, output):
         setpoint = self._setpoint.Eval(context)
         if int(SETPOINT.get(setpoint, "mode")) == CommandMode.RATES_THRUST:
-            rate = np.clip(SETPOINT.get(setpoint, "w_D"), -np.asarray(self._params.max_rate),
-                           self._params.max_rate)
+            rate = np.minimum(np.maximum(SETPOINT.get(setpoint, "w_D"), self._min_rate),
+                              self._max_rate)
         else:
             rate = attitude_rate_setpoint(FC_ATTITUDE.get(self._attitude.Eval(context), "q_WB"),
                                           SETPOINT.get(setpoint, "q_WD"), self._params)

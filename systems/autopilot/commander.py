@@ -15,6 +15,7 @@ spool-up and the settling on the ground are not flight (consumers that integrate
 accelerations, such as the estimator bank's M(53) stand-in, rely on this).
 """
 import dataclasses as dc
+import math
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -45,24 +46,33 @@ class CommanderParams:
 def check_command(command: np.ndarray, params: CommanderParams, last_stamp: float,
                   now: float) -> Refusal:
     """Why `command` (FC_COMMAND) must be refused, or Refusal.NONE."""
-    if not np.all(np.isfinite(command)):
+    stamp, mode, qw, qx, qy, qz, wx, wy, wz, thrust, arm = np.asarray(command).tolist()
+    if not all(math.isfinite(v) for v in (stamp, mode, qw, qx, qy, qz, wx, wy, wz, thrust,
+                                          arm)):
         return Refusal.NOT_FINITE
-    if int(FC_COMMAND.get(command, "mode")) not in (CommandMode.ATTITUDE_THRUST,
-                                                     CommandMode.RATES_THRUST) \
-            or FC_COMMAND.get(command, "mode") != int(FC_COMMAND.get(command, "mode")):
+    if int(mode) not in (CommandMode.ATTITUDE_THRUST, CommandMode.RATES_THRUST) \
+            or mode != int(mode):
         return Refusal.BAD_MODE
-    if not 0.0 <= FC_COMMAND.get(command, "thrust") <= 1.0:
+    if not 0.0 <= thrust <= 1.0:
         return Refusal.THRUST_RANGE
-    if abs(np.linalg.norm(FC_COMMAND.get(command, "q_WD")) - 1.0) > 0.1:
+    if abs(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) - 1.0) > 0.1:
         return Refusal.QUATERNION_NORM
-    if np.max(np.abs(FC_COMMAND.get(command, "w_D"))) > params.max_body_rate:
+    if max(abs(wx), abs(wy), abs(wz)) > params.max_body_rate:
         return Refusal.BODY_RATE_RANGE
-    if FC_COMMAND.get(command, "arm") not in (0.0, 1.0):
+    if arm not in (0.0, 1.0):
         return Refusal.ARM_FLAG
-    stamp = FC_COMMAND.get(command, "stamp")
     if stamp < last_stamp or stamp > now + params.stale_timeout:
         return Refusal.STAMP_ORDER
     return Refusal.NONE
+
+
+# check_command unpacks the command in this order.
+assert [name for name, _ in FC_COMMAND.fields] == ["stamp", "mode", "q_WD", "w_D", "thrust", "arm"]
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """np.array_equal(a, b, equal_nan=True) for two short vectors of the same size, cheaper."""
+    return all(p == q or (p != p and q != q) for p, q in zip(a.tolist(), b.tolist()))
 
 
 # Commander state vector: last raw command seen (to tell new messages), last accepted command,
@@ -122,7 +132,7 @@ class Commander(LeafSystem):
         now = context.get_time()
         command = self._command.Eval(context)
         held = x[L.slice("held")]
-        if not np.array_equal(command, x[L.slice("seen")], equal_nan=True):  # a new message
+        if not _same(command, x[L.slice("seen")]):  # a new message
             x[L.slice("seen")] = command
             refusal = check_command(command, self._p, FC_COMMAND.get(held, "stamp"), now)
             if refusal == Refusal.NONE:

@@ -33,15 +33,17 @@ def mix(force: float, torque: np.ndarray, pinv: np.ndarray, f_min: float,
     """Rotor thrusts within [f_min, f_max] for a collective force [N] and torque [N m]."""
     base = pinv[:, 0] * force
     roll_pitch = pinv[:, 1:3] @ torque[:2]
-    yaw = pinv[:, 3] * torque[2]
-    span = np.ptp(roll_pitch)
+    yaw = (pinv[:, 3] * torque[2]).tolist()
+    low, high = float(roll_pitch.min()), float(roll_pitch.max())
+    span = high - low
     rp_scale = min(1.0, (f_max - f_min) / span) if span > 0 else 1.0
     roll_pitch = roll_pitch * rp_scale
     # Shift the collective (up or down) as little as possible to fit roll and pitch.
-    lo = f_min - np.min(base + roll_pitch)
-    hi = f_max - np.max(base + roll_pitch)
-    shift = float(np.clip(0.0, lo, hi))
-    thrust = base + roll_pitch + shift
+    fitted = base + roll_pitch
+    lo = f_min - float(fitted.min())
+    hi = f_max - float(fitted.max())
+    shift = min(max(0.0, lo), hi)
+    thrust = (fitted + shift).tolist()
     yaw_scale = 1.0
     for f, dy in zip(thrust, yaw):  # largest yaw fraction that keeps every rotor in range
         if dy > 1e-12:
@@ -49,7 +51,7 @@ def mix(force: float, torque: np.ndarray, pinv: np.ndarray, f_min: float,
         elif dy < -1e-12:
             yaw_scale = min(yaw_scale, (f_min - f) / dy)
     yaw_scale = max(yaw_scale, 0.0)
-    thrust = np.clip(thrust + yaw_scale * yaw, f_min, f_max)
+    thrust = np.array([min(max(f + yaw_scale * dy, f_min), f_max) for f, dy in zip(thrust, yaw)])
     return MixerSolution(thrust, rp_scale, yaw_scale, shift * len(thrust))
 
 

@@ -35,6 +35,9 @@ class RateController(LeafSystem):
         self._p = params
         self._J = np.asarray(inertia)
         self._period = period
+        self._kp, self._kd = np.asarray(params.kp, float), np.asarray(params.kd, float)
+        self._ki_dt = np.asarray(params.ki, float) * period
+        self._limit = np.asarray(params.integrator_limit, float)
         self._rate_setpoint = self.DeclareVectorInputPort("rate_setpoint", 3)
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
@@ -43,20 +46,23 @@ class RateController(LeafSystem):
         self.DeclareVectorOutputPort("torque", 3, self._calc)
 
     def _update(self, context, discrete_state):
-        w = FC_ATTITUDE.get(self._attitude.Eval(context), "w_B")
-        integral = context.get_discrete_state(self._xd).get_value()[:3]
-        if SETPOINT.get(self._setpoint.Eval(context), "armed") > 0.5:
+        w = self._attitude.Eval(context)[_W_B]
+        x = discrete_state.get_mutable_value(self._xd)
+        if self._setpoint.Eval(context)[_ARMED] > 0.5:
             error = self._rate_setpoint.Eval(context) - w
-            limit = np.asarray(self._p.integrator_limit)
-            integral = np.clip(integral + np.asarray(self._p.ki) * error * self._period,
-                               -limit, limit)
+            x[:3] = np.minimum(np.maximum(x[:3] + self._ki_dt * error, -self._limit),
+                               self._limit)
         else:
-            integral = np.zeros(3)
-        discrete_state.set_value(self._xd, np.concatenate([integral, w]))
+            x[:3] = 0.0
+        x[3:] = w
 
     def _calc(self, context, output):
-        w = FC_ATTITUDE.get(self._attitude.Eval(context), "w_B")
+        w = self._attitude.Eval(context)[_W_B]
         x = context.get_discrete_state(self._xd).get_value()
-        alpha = np.asarray(self._p.kp) * (self._rate_setpoint.Eval(context) - w) + x[:3] \
-            - np.asarray(self._p.kd) * (w - x[3:]) / self._period
+        alpha = self._kp * (self._rate_setpoint.Eval(context) - w) + x[:3] \
+            - self._kd * (w - x[3:]) / self._period
         output.SetFromVector(self._J * alpha + cross(w, self._J * w))
+
+
+_W_B = FC_ATTITUDE.slice("w_B")
+_ARMED = SETPOINT.slice("armed").start

@@ -29,14 +29,16 @@ class AerodynamicDrag(LeafSystem):
         self.DeclareAbstractOutputPort(
             "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
             self._calc, prerequisites_of_calc={self.all_input_ports_ticket()})
+        # Runs at every plant step: one force object, re-filled (the output copies it).
+        self._force = ExternallyAppliedSpatialForce()
+        self._force.body_index = body_index
+        self._force.p_BoBq_B = np.zeros(3)
+        self._zero = np.zeros(3)
 
     def _calc(self, context, output):
         x = self._state.Eval(context)
         R_WB = rotation_matrix(x[0:4])
-        v_BA_B = R_WB.T @ (x[10:13] - self._wind.Eval(context))
-        force = ExternallyAppliedSpatialForce()
-        force.body_index = self._body_index
-        force.p_BoBq_B = np.zeros(3)
+        v_BA_B = (x[10:13] - self._wind.Eval(context)) @ R_WB  # R_WB^T (v_WB - v_WA)
         f_W = R_WB @ drag_force_B(v_BA_B, self._linear, self._quadratic)
-        force.F_Bq_W = SpatialForce(np.zeros(3), f_W)
-        output.set_value([force])
+        self._force.F_Bq_W = SpatialForce(self._zero, f_W)
+        output.set_value([self._force])

@@ -21,15 +21,18 @@ class EscThrustMap(LeafSystem):
     def __init__(self, num_rotors: int, rotor_curve: ThrustCurve):
         super().__init__()
         self._curve = rotor_curve
+        self._stopped = np.zeros(num_rotors)
         self._command = self.DeclareVectorInputPort("motor_command", num_rotors)
         self._armed = self.DeclareVectorInputPort("armed", 1)
         self.DeclareVectorOutputPort("thrust_command", num_rotors, self._calc,
                                      prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def _calc(self, context, output):
-        command = np.nan_to_num(self._command.Eval(context), nan=0.0, posinf=0.0, neginf=0.0)
-        armed = self._armed.Eval(context)[0] > 0.5
-        output.SetFromVector(self._curve.force(command) if armed else np.zeros(len(command)))
+        if self._armed.Eval(context)[0] > 0.5:
+            command = self._command.Eval(context)
+            output.SetFromVector(self._curve.force(np.where(np.isfinite(command), command, 0.0)))
+        else:
+            output.SetFromVector(self._stopped)
 
 
 def first_order_motors(time_constant: float, num_rotors: int, period: float) -> LinearSystem:
