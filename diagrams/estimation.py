@@ -112,7 +112,8 @@ class BankOdometry:
     its estimate in the anchor frame (`anchored`: for the linear MPC loop and the waypoint
     mission, which do not re-express on frame switches), or as the bank outputs it, switching
     frames (the managed stack re-expresses, M Sec. 3.5);
-    `connect_command` feeds the bank the command-derived acceleration (M(53) stand-in);
+    `connect_command` feeds the bank its input M(53): the active controller's own where it has
+    one (`controller_acceleration`, in the frame of `estimate`), else the command stand-in;
     `log(builder, loggers)` records `bank_estimate` (active frame) and `bank_status`."""
 
     def __init__(self, params: BankParams | None = None, request: str | None = None,
@@ -128,7 +129,8 @@ class BankOdometry:
         self._vehicle = vehicle
         return self.bank.anchored if self.anchored else self.bank.state_estimate
 
-    def connect_command(self, builder, command_port) -> None:
+    def connect_command(self, builder, command_port, controller_acceleration=None,
+                        estimate=None) -> None:
         if self._mass is None:
             from alight.diagrams.fly import load_linear_model
             model = load_linear_model()
@@ -138,6 +140,12 @@ class BankOdometry:
         builder.Connect(command_port, acceleration.GetInputPort("fc_command"))
         builder.Connect(self._vehicle.GetOutputPort("fc_status"),
                         acceleration.GetInputPort("fc_status"))
+        if controller_acceleration is not None:
+            builder.Connect(controller_acceleration,
+                            acceleration.GetInputPort("controller_acceleration"))
+            builder.Connect(estimate, acceleration.GetInputPort("state_estimate"))
+            builder.Connect(self._vehicle.GetOutputPort("fc_attitude"),
+                            acceleration.GetInputPort("fc_attitude"))
         builder.Connect(acceleration.GetOutputPort("desired_acceleration"),
                         self.bank.system.GetInputPort("desired_acceleration"))
 

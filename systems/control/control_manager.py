@@ -54,6 +54,7 @@ manager sends one only once landed).
 """
 import dataclasses as dc
 import enum
+import functools
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -186,11 +187,14 @@ class ControlManager(LeafSystem):
             controller i (in the order of `names`): `fc_command_i` FC_COMMAND,
             `controller_status_i` CONTROLLER_STATUS, `disturbance_estimate_i`
             DISTURBANCE_ESTIMATE (optional, for controllers that estimate disturbances M(35)-(37));
+            `desired_acceleration_i` (3, optional: controllers that output M(53));
             with trackers, `tracker_request` (2) [request id, tracker index] (optional) and per
             tracker k: `tracker_reference_k` REFERENCE, `tracker_status_k` TRACKER_STATUS
     Outputs `fc_command` FC_COMMAND (the active controller's command: the vehicle's command and
             every controller's `last_command`); `last_disturbance` DISTURBANCE_ESTIMATE (the
             active controller's, NaN when it has none: the next one takes them over);
+            `desired_acceleration` (3) the active controller's unbiased desired acceleration
+            M(53) [m/s^2, in E] (NaN when it has none: the estimator bank's input, M Sec. 3.1.1);
             `reference` REFERENCE (what the controllers track and every tracker's
             `last_reference`: the goal, the safety hold or the emergency descent); `active_i` (1)
             per controller; with trackers `tracker_active_k` (1) per tracker; `manager_status`
@@ -234,6 +238,8 @@ class ControlManager(LeafSystem):
         self._disturbances = [self.DeclareVectorInputPort(f"disturbance_estimate_{i}",
                                                           DISTURBANCE_ESTIMATE.size)
                               for i in range(len(names))]
+        self._accelerations = [self.DeclareVectorInputPort(f"desired_acceleration_{i}", 3)
+                               for i in range(len(names))]
         self._tracker_request = self.DeclareVectorInputPort("tracker_request", 2) \
             if self.trackers else None
         self._tracker_references = [self.DeclareVectorInputPort(
@@ -257,6 +263,9 @@ class ControlManager(LeafSystem):
                                      everything)
         self.DeclareVectorOutputPort("last_disturbance", DISTURBANCE_ESTIMATE.size,
                                      self._calc_disturbance,
+                                     {self.all_input_ports_ticket(), self.all_state_ticket()})
+        self.DeclareVectorOutputPort("desired_acceleration", 3, functools.partial(
+            self._forward_active, self._accelerations),
                                      {self.all_input_ports_ticket(), self.all_state_ticket()})
         self.DeclareVectorOutputPort("reference", REFERENCE.size, self._calc_reference,
                                      everything)
@@ -297,10 +306,14 @@ class ControlManager(LeafSystem):
         output.SetFromVector(command)
 
     def _calc_disturbance(self, context, output):
-        port = self._disturbances[int(context.get_discrete_state(self._state).get_value()[
+        self._forward_active(self._disturbances, context, output)
+
+    def _forward_active(self, ports, context, output):
+        """The active controller's value on `ports` (one per controller), NaN where unconnected."""
+        port = ports[int(context.get_discrete_state(self._state).get_value()[
             _STATE.slice("active")][0])]
         output.SetFromVector(port.Eval(context) if port.HasValue(context)
-                             else np.full(DISTURBANCE_ESTIMATE.size, np.nan))
+                             else np.full(port.size(), np.nan))
 
     def _calc_reference(self, context, output):
         output.SetFromVector(self._decide(context).reference)

@@ -9,6 +9,13 @@ one computed from the two hypotheses at that instant (same body position and hea
 consumers re-express their states (p_New = R_OldNew^T (p_Old - p_OldNew)) and the vehicle does
 not move. The orientation is M(12)-(14) (the flight controller's, turned to the filter's heading).
 
+Ground contact (the input u of M(7), M Sec. 3.1.1): the unbiased desired acceleration says what
+the thrust would do in the air. On the ground the ground carries what the thrust does not, so
+while the `ground.source` rangefinder reads a height under `ground.height` (the vehicle rests on
+its legs) the input's downward component is dropped: no filter integrates a descent the ground
+prevents (during spool-up before a take-off, or while the landing controller still pushes down
+before its mass estimate comes down, M Sec. 4.2).
+
 Bad input never reaches a hypothesis: a message with a non-finite value, or with a stamp older
 than the last one of its source (out of order), is rejected and counted in `bank_status`.
 """
@@ -35,6 +42,9 @@ class SourceParams:
     name: str = ""
     kind: str = choice("position_fix", "velocity_fix", "range", "odometry")
     timeout: float = bounded(0.5, 0.005, 600.0, "s")  # no new message this long: stopped
+    # a measurement failing the innovation gate is rejected, or clipped onto the gate (lkf.py:
+    # a precise source whose prediction may be the wrong one, e.g. the rangefinder)
+    gate_action: str = choice("reject", "clip")
     sensor: str = ""  # simulation: the sensor model's YAML in models/ (diagrams/estimation.py)
 
 
@@ -55,12 +65,20 @@ class FcSourceParams:
 
 
 @dc.dataclass
+class GroundParams:
+    """Ground contact from a `range` source (module docstring); `source` empty: none."""
+    source: str = ""
+    height: float = bounded(0.3, 0.0, 100.0, "m")  # the reading at rest (0.22 m) + 4 sigma
+
+
+@dc.dataclass
 class BankParams:
     period: float = bounded(0.01, 0.001, 1.0, "s")  # 100 Hz (DESIGN.md rates)
     fc: FcSourceParams = dc.field(default_factory=FcSourceParams)
     sources: list[SourceParams] = dc.field(default_factory=list)
     filters: list[FilterParams] = dc.field(default_factory=list)
     arbiter: ArbiterParams = dc.field(default_factory=ArbiterParams)
+    ground: GroundParams = dc.field(default_factory=GroundParams)
 
 
 @dc.dataclass(frozen=True)
@@ -106,6 +124,10 @@ def check_bank(params: BankParams, where: str = "<bank>") -> list[list[Fusion]]:
     names = [f.name for f in params.filters]
     if len(set(names)) != len(names) or not all(n.isidentifier() for n in names):
         raise ConfigError(f"{where}: key 'filters[].name' must be unique identifiers, got {names}")
+    if params.ground.source and kinds.get(params.ground.source) != "range":
+        ranges = [name for name, kind in kinds.items() if kind == "range"]
+        raise ConfigError(f"{where}: key 'ground.source' = {params.ground.source!r} must be a "
+                          f"source of kind 'range' ({ranges}) or empty")
     if params.arbiter.initial and params.arbiter.initial not in names:
         raise ConfigError(f"{where}: key 'arbiter.initial' = {params.arbiter.initial!r} is not "
                           f"one of {names}")
@@ -121,10 +143,11 @@ def check_bank(params: BankParams, where: str = "<bank>") -> list[list[Fusion]]:
 
 
 def status_layout(params: BankParams) -> VectorLayout:
-    """`bank_status`: active filter index, switches, rejected messages (non-finite, out of order)
-    and per filter: reliable (0/1), covariance trace, gate rejections, position p [m], velocity
+    """`bank_status`: active filter index, switches, rejected messages (non-finite, out of order),
+    on_ground (1 while the ground source reads the vehicle on the ground) and per filter: reliable (0/1), covariance trace, gate rejections, position p [m], velocity
     v [m/s] and heading [rad] in its own frame."""
-    fields = [("active", 1), ("switches", 1), ("rejected_nan", 1), ("rejected_order", 1)]
+    fields = [("active", 1), ("switches", 1), ("rejected_nan", 1), ("rejected_order", 1),
+              ("on_ground", 1)]
     for f in params.filters:
         fields += [(f"{f.name}_reliable", 1), (f"{f.name}_trace", 1),
                    (f"{f.name}_gated", 1), (f"{f.name}_p", 3), (f"{f.name}_v", 3),
@@ -151,6 +174,7 @@ class BankState:
     eta_o: float = 0.0
     stamp: float = np.nan
     heading_set: bool = False
+    on_ground: bool = False          # the ground source's last recent reading: on the ground
 
     def copy(self) -> "BankState":
         return dc.replace(self, filters=[f.copy() for f in self.filters],
@@ -176,6 +200,7 @@ class EstimatorBank(LeafSystem):
         self._gate = {k: chi2.ppf(params.arbiter.gate_probability, k) for k in (1, 2, 3)}
         self.status = status_layout(params)
         self.filter_names = [f.name for f in params.filters]
+        self._clip = {s.name: s.gate_action == "clip" for s in params.sources}
         self._fc = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._sources = {s.name: (s, self.DeclareVectorInputPort(
             s.name, ADAPTERS[s.kind].layout.size)) for s in params.sources}
@@ -201,6 +226,7 @@ class EstimatorBank(LeafSystem):
         s = context.get_abstract_state(self._state).get_value().copy()
         now = context.get_time()
         new = self._read_sources(context, s, now)
+        self._follow_ground(s, new, now)
         self._predict(context, s)
         for i, f in enumerate(self.params.filters):
             self._fuse(i, s, new, now)
@@ -251,8 +277,23 @@ class EstimatorBank(LeafSystem):
         if not np.all(np.isfinite(u_o)):
             s.rejected_nan += 1
             u_o = np.zeros(3)
+        if s.on_ground:
+            u_o = np.array([u_o[0], u_o[1], max(u_o[2], 0.0)])
         for kf in s.filters:
             kf.predict(rotation_z(kf.eta[0] - s.eta_o) @ u_o)
+
+    def _follow_ground(self, s: BankState, new: dict, now: float) -> None:
+        """On the ground while the ground source's last reading, not older than the source's
+        timeout, is under `ground.height` (module docstring)."""
+        ground = self.params.ground
+        if not ground.source:
+            return
+        if ground.source in new:
+            heights = [m.z[0] for m in new[ground.source][1] if m.quantity == "height"]
+            s.on_ground = bool(heights) and heights[0] < ground.height
+        timeout = next(src.timeout for src in self.params.sources if src.name == ground.source)
+        if now - s.seen.get(ground.source, (-np.inf, -np.inf))[0] > timeout:
+            s.on_ground = False
 
     def _fuse(self, i: int, s: BankState, new: dict, now: float) -> None:
         kf, health = s.filters[i], s.health[i]
@@ -295,8 +336,8 @@ class EstimatorBank(LeafSystem):
         if order == POSITION and (reset or not kf.positioned[axes].all()):
             kf.set_position(axes, z, var)  # initialization, or re-initialization
             return True
-        return kf.correct(axes, order, z, var, age,
-                          gate=self._gate[len(axes)] if gated else None)[0]
+        return kf.correct(axes, order, z, var, age, gate=self._gate[len(axes)] if gated else None,
+                          clip=self._clip[fusion.source])[0]
 
     def _check_health(self, s: BankState, now: float) -> None:
         timeouts = {src.name: src.timeout for src in self.params.sources}
@@ -344,7 +385,7 @@ class EstimatorBank(LeafSystem):
     def _calc_status(self, context, output):
         s = context.get_abstract_state(self._state).get_value()
         values = {"active": s.active, "switches": s.switches, "rejected_nan": s.rejected_nan,
-                  "rejected_order": s.rejected_order}
+                  "rejected_order": s.rejected_order, "on_ground": float(s.on_ground)}
         for i, name in enumerate(self.filter_names):
             values[f"{name}_reliable"] = float(s.health[i].reliable)
             values[f"{name}_trace"] = s.filters[i].covariance_trace()

@@ -10,7 +10,11 @@ Corrections are scalar per axis (the subsystems are decoupled, so a measurement 
 is a sum of independent scalar updates and its normalized innovation squared (NIS) is the sum of
 theirs). A measurement `age` seconds old is compared with the state propagated back along the
 model (H = [1, -age, age^2 / 2] for a position): cheap latency compensation without a buffer.
-Innovation gating: a measurement whose NIS exceeds the chi-square quantile `gate` is rejected.
+Innovation gating: a measurement whose NIS exceeds the chi-square quantile `gate` is rejected,
+or, for a precise source whose prediction may be the wrong one (a rangefinder against a model
+input the ground contradicts), clipped: fused with its innovation scaled onto the gate, so that a
+spike moves the state by at most the gate's worth and a drifting prediction is still pulled back
+(rejecting it would leave the axis to the wrong input and the gap would only grow).
 """
 import dataclasses as dc
 
@@ -89,9 +93,10 @@ class DecoupledKf:
         self.observed[list(axes)] = True
 
     def correct(self, axes, order: int, z, variance, age: float = 0.0,
-                gate: float | None = None) -> tuple[bool, float]:
+                gate: float | None = None, clip: bool = False) -> tuple[bool, float]:
         """Position (order 0) or velocity (order 1) of `axes`, measured `age` s ago. Returns
-        (accepted, NIS); with `gate`, a measurement whose NIS exceeds it changes nothing."""
+        (within the gate, NIS); with `gate`, a measurement whose NIS exceeds it changes nothing,
+        or with `clip` is fused with its innovation scaled down to NIS = gate."""
         h = np.array([1.0, -age, age * age / 2]) if order == POSITION else \
             np.array([0.0, 1.0, -age])
         axes = list(axes)
@@ -100,13 +105,16 @@ class DecoupledKf:
         S = Ph @ h + np.asarray(variance, float)           # (k,)
         innovation = np.asarray(z, float) - self.x[axes] @ h
         nis = float(np.sum(innovation * innovation / S))
-        if gate is not None and nis > gate:
+        passed = gate is None or nis <= gate
+        if not passed and not clip:
             return False, nis
+        if not passed:
+            innovation = innovation * np.sqrt(gate / nis)
         K = Ph / S[:, None]
         self.x[axes] += K * innovation[:, None]
         self.P[axes] = P - K[:, :, None] * Ph[:, None, :]
         self.observed[axes] = True
-        return True, nis
+        return passed, nis
 
     def correct_heading(self, z: float, variance: float, order: int = 0,
                         gate: float | None = None) -> tuple[bool, float]:
