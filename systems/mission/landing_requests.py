@@ -1,14 +1,14 @@
 """The landing mission (L Sec. 6.4) on the managed stack (M Sec. 7.2): the mission state machine's
 mode and arm request turned into the control manager's requests and the trackers' goals.
 
-| mode                      | tracker (default)      | goal                                        |
-|---------------------------|------------------------|---------------------------------------------|
-| Idle                      | landoff                | none (disarmed)                             |
-| Taking Off                | landoff                | take-off to `takeoff_height` at lift-off     |
-| Waypoint                  | mpc_tracker            | the waypoint at the mission's heading       |
-| Follow                    | target                 | follow at the height held (L Sec. 6.3)      |
-| Landing Phase 1 / 2       | target                 | descend at `descending_p1` / `descending_p2` |
-| Landed                    | (unchanged)            | disarm                                      |
+| mode                | tracker (default) | goal                                          |
+|---------------------|-------------------|-----------------------------------------------|
+| Idle                | landoff           | none (disarmed)                               |
+| Taking Off          | landoff           | take-off to `takeoff_height` at lift-off      |
+| Waypoint            | mpc_tracker       | the waypoint at the mission's heading         |
+| Follow              | target            | follow at the height held (L Sec. 6.3)        |
+| Landing Phase 1 / 2 | target            | descend at `descending_p1` / `descending_p2`  |
+| Landed              | (unchanged)       | disarm                                        |
 
 The tracker request's id is the mission's transition count plus one: every mode change is a new
 request (the control manager ignores a request for the tracker already active). The mission's
