@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
+from alight.diagrams.estimation import scenario_odometry
 from alight.diagrams.fly import MpcLoop, add_mpc_control, add_mpc_logging, load_linear_mpc
 from alight.diagrams.hover import default_run_dir
 from alight.diagrams.perception import TargetPerceptionPorts, add_target_perception
@@ -59,14 +60,22 @@ class LandingScenario:
     wind: WindParams = dc.field(default_factory=WindParams)
     mission: LandingMissionParams = dc.field(default_factory=LandingMissionParams)
     mpc: str = "linear_mpc.yaml"    # the MPC's tuning (models/)
+    # The odometry flown on: mocap, or the estimator bank of `estimator_bank` (M Sec. 3.5):
+    # `bank` (its arbiter) or one of its filters by name (diagrams/estimation.py)
+    estimator: str = "mocap"
+    estimator_bank: str = "estimator_bank.yaml"
     impact: ImpactLimits = dc.field(default_factory=ImpactLimits)
     max_duration: float = bounded(90.0, 5.0, 3600.0, "s")
     settle_time: float = bounded(2.0, 0.5, 30.0, "s")  # after disarming, to judge the rest
 
 
 def load_scenario(name_or_file: str = "field") -> LandingScenario:
-    """A scenario by name (`mbzirc`, `field`) or YAML file (a path, or a file name in models/)."""
-    return load_params(LandingScenario, model_path(SCENARIOS.get(name_or_file, name_or_file)))
+    """A scenario by name (`mbzirc`, `field`) or YAML file (a path, or a file name in models/);
+    a ConfigError names the file and the key (also an unknown `estimator`)."""
+    path = model_path(SCENARIOS.get(name_or_file, name_or_file))
+    scenario = load_params(LandingScenario, path)
+    scenario_odometry(scenario.estimator, scenario.estimator_bank, str(path))
+    return scenario
 
 
 def vehicle_config(scenario: LandingScenario) -> SimVehicleConfig:
@@ -180,12 +189,16 @@ def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=
     if stack == "direct" and controller != "linear_mpc":
         raise ValueError(f"controller {controller!r}: the direct stack flies linear_mpc only; "
                          f"use stack 'managed'")
+    if odometry is None:   # the scenario's `estimator` (None: mocap)
+        odometry = scenario_odometry(scenario.estimator, scenario.estimator_bank)
     builder = DiagramBuilder()
     if stack == "managed":
         from alight.diagrams.landing_managed import build_landing_managed
         config, onboard = build_landing_managed(builder, scenario, meshcat, odometry, controller)
     else:
         config, onboard = build_landing(builder, scenario, meshcat, odometry)
+    if hasattr(odometry, "log"):   # the bank: bank_estimate, bank_status
+        odometry.log(builder, onboard.loggers)
     diagram = builder.Build()
     simulator = simulate(diagram, scenario.max_duration, seed, meshcat, record, realtime_rate,
                          stop_when=onboard.finished(scenario.settle_time))
