@@ -1,8 +1,6 @@
 """Landing on the estimator bank (M Sec. 3.1.1 input, 3.1.2 rangefinder): ground contact, the
 clipped rangefinder, the active controller's own M(53) as the bank's input, and the managed stack
 flown on the bank from take-off to a disarmed landing."""
-import dataclasses as dc
-
 import numpy as np
 import pytest
 from pydrake.math import RotationMatrix
@@ -11,11 +9,11 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from alight.diagrams.estimation import BankOdometry, load_bank_params
 from alight.diagrams.uav import Mission
-from alight.systems.boundary import FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_ESTIMATE
+from alight.systems.boundary import FC_ATTITUDE, FC_STATUS, STATE_ESTIMATE
 from alight.systems.control.control_manager import (ControlManager, EmergencyParams,
                                                     ManagerMode, SafetyArea)
 from alight.systems.control.force_controller import VehicleModel, level_command
-from alight.systems.estimation.bank import EstimatorBank, GroundParams
+from alight.systems.estimation.bank import EstimatorBank
 from alight.systems.estimation.command_acceleration import CommandAcceleration
 from alight.systems.estimation.heading import rotation_z
 from alight.systems.estimation.measurements import RANGE

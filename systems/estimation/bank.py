@@ -144,8 +144,9 @@ def check_bank(params: BankParams, where: str = "<bank>") -> list[list[Fusion]]:
 
 def status_layout(params: BankParams) -> VectorLayout:
     """`bank_status`: active filter index, switches, rejected messages (non-finite, out of order),
-    on_ground (1 while the ground source reads the vehicle on the ground) and per filter: reliable (0/1), covariance trace, gate rejections, position p [m], velocity
-    v [m/s] and heading [rad] in its own frame."""
+    on_ground (1 while the ground source reads the vehicle on the ground) and per filter:
+    reliable (0/1), covariance trace, gate rejections, position p [m], velocity v [m/s] and
+    heading [rad] in its own frame."""
     fields = [("active", 1), ("switches", 1), ("rejected_nan", 1), ("rejected_order", 1),
               ("on_ground", 1)]
     for f in params.filters:
