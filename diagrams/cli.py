@@ -116,6 +116,7 @@ def _fly_stack(args) -> dict:
     """The managed stack's options of `alight fly`: names checked against the YAML lists, the
     estimator (mocap or the bank), the scheduled controller switches."""
     from alight.diagrams.control_manager import load_control_manager_config, parse_switch
+    from alight.diagrams.estimation import scenario_odometry
     from alight.systems.params import ConfigError
     config = load_control_manager_config()
     for option, name, names in (("--controller", args.controller, config.names),
@@ -125,15 +126,9 @@ def _fly_stack(args) -> dict:
                               f"(models/control_manager.yaml)")
     stack = {"schedule": [parse_switch(text, config.names)
                           for text in args.switch_controller_at]}
-    if args.estimator != "mocap":
-        from alight.diagrams.estimation import BankOdometry, load_bank_params
-        params = load_bank_params(args.bank)
-        names = [f.name for f in params.filters]
-        if args.estimator not in ["bank", *names]:
-            raise ConfigError(f"--estimator {args.estimator!r} is not 'mocap', 'bank' or a "
-                              f"filter of {args.bank}: {names}")
-        odometry = BankOdometry(params, request=None if args.estimator == "bank"
-                                else args.estimator, anchored=False)
+    odometry = scenario_odometry(args.estimator, args.bank, "alight fly --estimator",
+                                 anchored=False)
+    if odometry is not None:
         stack.update(odometry=odometry, log=odometry.log)
     return stack
 

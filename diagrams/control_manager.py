@@ -237,11 +237,23 @@ def add_control_manager(builder, config: ControlManagerConfig,
                             controller.GetInputPort("last_disturbance"))
         if fc_attitude is not None and controller.HasInputPort("fc_attitude"):
             builder.Connect(fc_attitude, controller.GetInputPort("fc_attitude"))
+        if controller.HasOutputPort("desired_acceleration"):   # M(53), for the bank
+            builder.Connect(controller.GetOutputPort("desired_acceleration"),
+                            manager.GetInputPort(f"desired_acceleration_{i}"))
         controllers[entry.name] = controller
     return ManagedControllers(manager, controllers, {
         entry.name: _add_tracker(builder, manager, k, entry, controllers_config, state_estimate,
                                  goals or {}, target_estimate)
         for k, entry in enumerate(trackers)})
+
+
+def connect_managed_odometry(builder, odometry, managed: ManagedControllers, estimate) -> None:
+    """An odometry with `connect_command` (the estimator bank) is given the issued command and
+    the active controller's unbiased desired acceleration M(53) (M Sec. 3.1.1)."""
+    if hasattr(odometry, "connect_command"):
+        manager = managed.manager
+        odometry.connect_command(builder, manager.GetOutputPort("fc_command"),
+                                 manager.GetOutputPort("desired_acceleration"), estimate)
 
 
 def _add_tracker(builder, manager, k: int, entry: TrackerEntry, controllers_config,

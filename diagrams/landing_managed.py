@@ -15,6 +15,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.control_manager import (ControlManagerConfig, ManagedControllers,
                                              add_control_manager, add_managed_logging,
+                                             connect_managed_odometry,
                                              load_control_manager_config)
 from alight.diagrams.controllers import load_controllers_config
 from alight.diagrams.fly import mocap_odometry
@@ -96,8 +97,7 @@ def add_landing_managed(builder: DiagramBuilder, scenario: LandingScenario, vehi
     builder.Connect(requests.GetOutputPort("tracker_request"),
                     manager.GetInputPort("tracker_request"))
     builder.Connect(manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    if hasattr(odometry, "connect_command"):  # e.g. the estimator bank's acceleration input
-        odometry.connect_command(builder, manager.GetOutputPort("fc_command"))
+    connect_managed_odometry(builder, odometry, managed, estimate)
     # "goal": the mission's own L Sec. 6.3 reference, beside the issued one ("reference").
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
                                   mission.GetOutputPort("reference"), config.period)

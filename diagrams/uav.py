@@ -28,6 +28,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.control_manager import (GOAL_KINDS, ControlManagerConfig, ManagedControllers,
                                              add_control_manager, add_managed_logging,
+                                             connect_managed_odometry,
                                              load_control_manager_config)
 from alight.diagrams.controllers import ControllersConfig, load_controllers_config
 from alight.diagrams.fly import mocap_odometry
@@ -100,13 +101,7 @@ def add_managed_onboard(builder, vehicle, config: ControlManagerConfig | None = 
     if landing.HasOutputPort("landed"):
         builder.Connect(landing.GetOutputPort("landed"), uav.GetInputPort("landed"))
     builder.Connect(manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    for i, name in enumerate(manager.names):  # the active one's M(53): the bank's input
-        if managed.controllers[name].HasOutputPort("desired_acceleration"):
-            builder.Connect(managed.controllers[name].GetOutputPort("desired_acceleration"),
-                            manager.GetInputPort(f"desired_acceleration_{i}"))
-    if hasattr(odometry, "connect_command"):  # e.g. the estimator bank's acceleration input
-        odometry.connect_command(builder, manager.GetOutputPort("fc_command"),
-                                 manager.GetOutputPort("desired_acceleration"), estimate)
+    connect_managed_odometry(builder, odometry, managed, estimate)
     builder.ExportInput(uav.GetInputPort("command"), "uav_command")
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
                                   manager.GetOutputPort("reference"), config.period)
