@@ -27,11 +27,12 @@ class CampaignJob:
     camera: str | None = None
     stack: str = "direct"           # run_landing's: direct (linear MPC) or managed
     controller: str = "linear_mpc"  # the managed stack's controller
+    estimator: str | None = None    # the scenario's odometry: mocap, vio, bank, a bank filter
 
 
 def scenario_for(job: CampaignJob):
     """The job's scenario with its overrides applied (and validated)."""
-    from alight.diagrams.landing import load_scenario
+    from alight.diagrams.landing import check_estimator, load_scenario
     from alight.systems.params import validate
     scenario = load_scenario(job.scenario)
     if job.target_speed is not None:
@@ -41,8 +42,10 @@ def scenario_for(job: CampaignJob):
         wind = dc.replace(wind, mean_speed=job.wind_kmh / 3.6)
     if job.gusts is not None:
         wind = dc.replace(wind, gust_std=job.gusts)
-    scenario = dc.replace(scenario, wind=wind, camera=job.camera or scenario.camera)
+    scenario = dc.replace(scenario, wind=wind, camera=job.camera or scenario.camera,
+                          estimator=job.estimator or scenario.estimator)
     validate(scenario, "campaign job")
+    check_estimator(scenario, "--estimator")
     return scenario
 
 

@@ -289,7 +289,8 @@ def _land_scenario(args):
     from alight.diagrams.campaign import CampaignJob, scenario_for
     return scenario_for(CampaignJob(args.scenario, args.target_speed, args.seed, "",
                                     getattr(args, "wind", None), getattr(args, "gusts", None),
-                                    getattr(args, "camera", None)))
+                                    getattr(args, "camera", None),
+                                    estimator=getattr(args, "estimator", None)))
 
 
 def _check_landing_stack(args) -> None:
@@ -345,7 +346,8 @@ def _land(args) -> int:
 
 def _campaign(args) -> int:
     from pathlib import Path
-    from alight.diagrams.campaign import campaign_jobs, run_campaign, write_summary
+    from alight.diagrams.campaign import (campaign_jobs, run_campaign, scenario_for,
+                                          write_summary)
     from alight.systems.params import ConfigError
     try:
         speeds = [float(v) for v in args.target_speeds.split(",") if v.strip()]
@@ -358,14 +360,15 @@ def _campaign(args) -> int:
               file=sys.stderr)
         return 2
     out = Path(args.out)
-    try:
-        _check_landing_stack(args)
-    except ConfigError as e:
-        print(f"alight campaign: {e}", file=sys.stderr)
-        return 2
     jobs = campaign_jobs(out, args.scenario, speeds, args.runs, args.seed, wind_kmh=args.wind,
                          gusts=args.gusts, camera=args.camera, stack=args.stack,
-                         controller=args.controller)
+                         controller=args.controller, estimator=args.estimator)
+    try:
+        _check_landing_stack(args)
+        scenario_for(jobs[0])          # a bad scenario or override stops here, not in a worker
+    except (ConfigError, FileNotFoundError) as e:
+        print(f"alight campaign: {e}", file=sys.stderr)
+        return 2
     rows = run_campaign(out, jobs, workers=args.workers, scheduler=args.scheduler)
     summary = write_summary(out, rows)
     print(summary.to_string(float_format=lambda v: f"{v:.2f}"))
@@ -381,6 +384,9 @@ def _add_landing_options(parser: argparse.ArgumentParser) -> None:
                         help="gust standard deviation in m/s")
     parser.add_argument("--camera", choices=["geometric", "rendered"],
                         help="down camera source (default: the scenario's)")
+    parser.add_argument("--estimator", metavar="NAME",
+                        help="odometry (default: the scenario's): mocap, vio (L Sec. 5.1, the "
+                             "forward RGB-D camera), bank or a filter of the estimator bank")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random source")
     parser.add_argument("--stack", choices=["direct", "managed"], default="direct",
                         help="direct: the mission drives the linear MPC (default); managed: the "

@@ -159,20 +159,22 @@ ESTIMATORS = ("mocap", "bank")   # besides the bank's filter names
 
 
 def scenario_odometry(estimator: str, bank_file: str = "estimator_bank.yaml",
-                      where: str = "<scenario>", anchored: bool = True) -> "BankOdometry | None":
+                      where: str = "<scenario>", anchored: bool = True,
+                      others: tuple = ()) -> "BankOdometry | None":
     """The `odometry` hook a scenario's `estimator:` entry names: None for `mocap` (the stacks'
     default), `BankOdometry` on the bank of `bank_file` for `bank` (its arbiter) or one of its
     filters (requested for the whole run); `anchored` for the landing mission's state machine,
     which keeps its waypoint and reference in E and does not re-express them on frame switches
     (the managed stack of `alight fly` does: anchored=False). Raises ConfigError naming `where`
-    and the key for anything else."""
+    and the key for anything else (`others`: names the caller handles, for the message)."""
     if estimator == "mocap":
         return None
     params = load_bank_params(bank_file)
     names = [f.name for f in params.filters]
     if estimator != "bank" and estimator not in names:
         raise ConfigError(f"{where}: key 'estimator' = {estimator!r} must be one of "
-                          f"{[*ESTIMATORS, *names]} (the filters of {bank_file})")
+                          f"{[*ESTIMATORS, *others, *names]} (the last ones: the filters of "
+                          f"{bank_file})")
     return BankOdometry(params, request=None if estimator == "bank" else estimator,
                         anchored=anchored)
 

@@ -60,10 +60,14 @@ class LandingScenario:
     wind: WindParams = dc.field(default_factory=WindParams)
     mission: LandingMissionParams = dc.field(default_factory=LandingMissionParams)
     mpc: str = "linear_mpc.yaml"    # the MPC's tuning (models/)
-    # The odometry flown on: mocap, or the estimator bank of `estimator_bank` (M Sec. 3.5):
-    # `bank` (its arbiter) or one of its filters by name (diagrams/estimation.py)
+    # The odometry flown on: mocap, `vio` (L Sec. 5.1: the forward RGB-D camera `rgbd_camera`
+    # and the VIO of `vio`, its frame placed at the take-off point: a surveyed start), or the
+    # estimator bank of `estimator_bank` (M Sec. 3.5): `bank` (its arbiter) or one of its
+    # filters by name (diagrams/estimation.py)
     estimator: str = "mocap"
     estimator_bank: str = "estimator_bank.yaml"
+    rgbd_camera: str = "rgbd_camera_landing.yaml"
+    vio: str = "vio.yaml"
     impact: ImpactLimits = dc.field(default_factory=ImpactLimits)
     max_duration: float = bounded(90.0, 5.0, 3600.0, "s")
     settle_time: float = bounded(2.0, 0.5, 30.0, "s")  # after disarming, to judge the rest
@@ -74,8 +78,24 @@ def load_scenario(name_or_file: str = "field") -> LandingScenario:
     a ConfigError names the file and the key (also an unknown `estimator`)."""
     path = model_path(SCENARIOS.get(name_or_file, name_or_file))
     scenario = load_params(LandingScenario, path)
-    scenario_odometry(scenario.estimator, scenario.estimator_bank, str(path))
+    check_estimator(scenario, str(path))
     return scenario
+
+
+def check_estimator(scenario: LandingScenario, where: str = "<scenario>") -> None:
+    """Raises ConfigError naming `where` and the key when `estimator` names no odometry."""
+    if scenario.estimator != "vio":
+        scenario_odometry(scenario.estimator, scenario.estimator_bank, where, others=("vio",))
+
+
+def landing_odometry(scenario: LandingScenario):
+    """The `odometry` hook of the scenario's `estimator` (None: mocap)."""
+    if scenario.estimator != "vio":
+        return scenario_odometry(scenario.estimator, scenario.estimator_bank)
+    from alight.diagrams.vio import VioRun, load_vio_params
+    params = load_vio_params(scenario.vio)
+    start = [*scenario.vehicle_position, params.initial_position[2]]
+    return VioRun(dc.replace(params, initial_position=start))
 
 
 def vehicle_config(scenario: LandingScenario) -> SimVehicleConfig:
@@ -103,6 +123,9 @@ def vehicle_config(scenario: LandingScenario) -> SimVehicleConfig:
                         source=scenario.camera)
     config = dc.replace(config, target=target, down_camera=camera, wind=scenario.wind,
                         initial_position=list(scenario.vehicle_position))
+    if scenario.estimator == "vio":    # the VIO's forward RGB-D camera
+        from alight.diagrams.vio import load_rgbd_camera_params
+        config = dc.replace(config, rgbd_camera=load_rgbd_camera_params(scenario.rgbd_camera))
     validate(config, f"scenario {scenario.name}")
     return config
 
@@ -190,14 +213,14 @@ def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=
         raise ValueError(f"controller {controller!r}: the direct stack flies linear_mpc only; "
                          f"use stack 'managed'")
     if odometry is None:   # the scenario's `estimator` (None: mocap)
-        odometry = scenario_odometry(scenario.estimator, scenario.estimator_bank)
+        odometry = landing_odometry(scenario)
     builder = DiagramBuilder()
     if stack == "managed":
         from alight.diagrams.landing_managed import build_landing_managed
         config, onboard = build_landing_managed(builder, scenario, meshcat, odometry, controller)
     else:
         config, onboard = build_landing(builder, scenario, meshcat, odometry)
-    if hasattr(odometry, "log"):   # the bank: bank_estimate, bank_status
+    if hasattr(odometry, "log"):   # the bank's or the VIO's own streams
         odometry.log(builder, onboard.loggers)
     diagram = builder.Build()
     simulator = simulate(diagram, scenario.max_duration, seed, meshcat, record, realtime_rate,
