@@ -105,8 +105,17 @@ class _Pacer:
             time.sleep(0.0005)
 
 
-class _Terminate(Exception):
-    """SIGTERM, turned into an exception in the main thread so the safe stop runs."""
+class _StopRequest:
+    """Ctrl-C (SIGINT) and SIGTERM set a flag that the loop reads between ticks. An exception
+    raised from the signal handler would surface inside a Python system called by Drake's C++
+    `AdvanceTo`, where it can be lost: the process then ignored Ctrl-C (measured: a
+    sim-autopilot without a client ran on for more than 60 s)."""
+
+    def __init__(self):
+        self.requested = False
+
+    def __call__(self, signum, frame):
+        self.requested = True
 
 
 def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 0,
@@ -131,7 +140,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     context = simulator.get_mutable_context()
     diagram.SetRandomContext(context, RandomGenerator(seed))
     simulator.set_target_realtime_rate(clock.rate)
-    previous = _install_sigterm()
+    stop, previous = _install_stop_handlers()
     ticks = overruns = 0
     max_lag = paced_wait = 0.0
     pacer = _Pacer(pace, pace_stall) if pace is not None else None
@@ -143,7 +152,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
         simulator.Initialize()
         end = math.inf if duration is None else duration
         t = context.get_time()
-        while t < end:
+        while t < end and not stop.requested:
             t = min(t + tick, end)
             if pacer is not None:
                 paced_wait += pacer.wait_until(t)
@@ -158,12 +167,13 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
                                 "%.2f s", overruns, 1e3 * lag, t)
             if stop_when is not None and stop_when(context):
                 break
-    except (KeyboardInterrupt, _Terminate):
+    except KeyboardInterrupt:      # off the main thread the handlers are not installed
         interrupted = True
     except Exception as e:
         error = e
     finally:
-        _restore_sigterm(previous)
+        interrupted = interrupted or stop.requested
+        _restore_handlers(previous)
         wall = time.monotonic() - wall_start
         cpu = time.process_time() - cpu_start
         stop_answer = "none (no vehicle hook)"
@@ -181,15 +191,15 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     return simulator, report
 
 
-def _install_sigterm():
+def _install_stop_handlers() -> tuple[_StopRequest, dict]:
+    """SIGINT and SIGTERM request a stop between ticks (main thread only)."""
+    stop = _StopRequest()
     if threading.current_thread() is not threading.main_thread():
-        return None
-
-    def _raise(signum, frame):
-        raise _Terminate()
-    return signal.signal(signal.SIGTERM, _raise)
+        return stop, {}
+    return stop, {signum: signal.signal(signum, stop)
+                  for signum in (signal.SIGINT, signal.SIGTERM)}
 
 
-def _restore_sigterm(previous) -> None:
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
+def _restore_handlers(previous: dict) -> None:
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)

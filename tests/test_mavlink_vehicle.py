@@ -2,6 +2,8 @@
 the setpoint stream, the arming/offboard/ack sequences, link loss, the real-time runner and its
 final safe command. Real-time runs here last 1-2 s each."""
 import math
+import os
+import signal
 import threading
 import time
 
@@ -289,3 +291,32 @@ def test_realtime_runner_reports_overruns_and_stops_on_ctrl_c_with_the_safe_comm
     # 10 ticks of 10 ms took 30 ms each: the run fell up to ~0.2 s behind and caught up.
     assert report.overruns >= 5 and 0.15 < report.max_lag < 0.4
     assert time.monotonic() - start < 1.5
+
+
+class SendSignal(LeafSystem):
+    """Sends this process `signum` once, at `at` [s] of diagram time (a real Ctrl-C / kill)."""
+
+    def __init__(self, signum, at):
+        super().__init__()
+        self._signum, self._at, self.sent = signum, at, False
+        self.DeclarePeriodicPublishEvent(0.01, 0.0, self._publish)
+
+    def _publish(self, context):
+        if context.get_time() >= self._at and not self.sent:
+            self.sent = True
+            os.kill(os.getpid(), self._signum)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_realtime_runner_stops_on_a_real_signal_within_a_tick(signum):
+    """The signal arrives while Drake runs the diagram's Python systems: the runner stops at the
+    next tick and sends the safe command (an exception raised by the handler inside Drake's
+    AdvanceTo could be lost: a sim-autopilot once ran on for over 60 s after Ctrl-C)."""
+    builder = DiagramBuilder()
+    builder.AddSystem(SendSignal(signum, at=0.3))
+    diagram = builder.Build()
+    previous = signal.getsignal(signum)
+    simulator, report = run_realtime(diagram, 5.0, WallClock(), safe_stop=lambda: "disarmed")
+    assert report.interrupted and report.safe_stop == "disarmed"
+    assert report.sim_time == pytest.approx(0.31, abs=0.011)
+    assert signal.getsignal(signum) == previous      # the handlers are put back
