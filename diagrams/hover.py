@@ -15,7 +15,6 @@ from alight.systems.control.scripted_pilot import PilotModel, PilotProfile, Scri
 from alight.systems.params import load_params
 from alight.systems.rotations import tilt_deg
 from alight.systems.plant.hexacopter import load_hexacopter_params
-from alight.systems.thrust_curve import ThrustCurve
 
 
 def load_pilot_profile(filename: str = "hover_profile.yaml") -> PilotProfile:

@@ -15,6 +15,7 @@ from alight.diagrams.landing_score import score_landing
 from alight.diagrams.run_log import RunLog
 from alight.models import model_path
 from alight.systems.mission.landing import Mode
+from conftest import assert_landed
 
 SPEED = 2.0  # m/s
 
@@ -32,11 +33,7 @@ def test_seeded_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     status, run = landing
     assert status == 0
     scenario = load_scenario("field")
-    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
-    assert score.success, score.row()
-    assert score.e_xy < 0.5                      # L Table 1: 2.5 - 45.8 cm when landed
-    assert 2.0 < score.tracking_duration < 15.0  # L Table 1: 4.8 - 7.7 s
-    assert score.target_speed == pytest.approx(SPEED, abs=0.6)
+    score = assert_landed(run, scenario, SPEED)
     assert score.touchdown_speed < scenario.impact.vertical_speed
     assert (run.path / "mission.png").stat().st_size > 20_000   # like L Fig. 10
     assert (run.path / "paths.png").stat().st_size > 10_000     # like L Fig. 12

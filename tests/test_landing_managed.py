@@ -8,7 +8,6 @@ import pytest
 from alight.diagrams.cli import main
 from alight.diagrams.landing import load_scenario, mission_transitions
 from alight.diagrams.landing_managed import landing_manager_config, tracker_switches
-from alight.diagrams.landing_score import score_landing
 from alight.diagrams.run_log import RunLog
 from alight.systems.control.control_manager import ManagerMode
 from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode
@@ -16,6 +15,7 @@ from alight.systems.mission.landing_requests import LandingRequests
 from alight.systems.params import ConfigError
 from alight.systems.tracking.landoff_tracker import LandoffGoal
 from alight.systems.tracking.target_tracker import TargetGoal
+from conftest import assert_landed
 
 SPEED = 2.0  # m/s
 TRACKERS = ["mpc_tracker", "landoff", "speed", "target"]
@@ -34,11 +34,7 @@ def test_seeded_managed_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     status, run = landing
     assert status == 0
     scenario = load_scenario("field")
-    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
-    assert score.success, score.row()
-    assert score.e_xy < 0.5                      # L Table 1: 2.5 - 45.8 cm when landed
-    assert 2.0 < score.tracking_duration < 15.0  # L Table 1: 4.8 - 7.7 s
-    assert score.target_speed == pytest.approx(SPEED, abs=0.6)
+    assert_landed(run, scenario, SPEED)
     assert run.metadata["stack"] == "managed" and run.metadata["controller"] == "linear_mpc"
 
 

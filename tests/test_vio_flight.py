@@ -7,10 +7,10 @@ import pytest
 
 from alight.diagrams.fly import fly_waypoints
 from alight.diagrams.landing import load_scenario, run_landing
-from alight.diagrams.landing_score import score_landing
 from alight.diagrams.sim_vehicle import load_sim_vehicle_config
 from alight.diagrams.vio import VioRun, load_rgbd_camera_params
 from alight.systems.vio.estimator import VioStatus
+from conftest import assert_landed
 
 
 def truth_at(run, t, field="p_WB"):
@@ -115,9 +115,7 @@ def test_the_landing_mission_on_vio_lands_on_the_moving_car(tmp_path):
     physics like every landing."""
     scenario = dc.replace(load_scenario("field"), target_speed=2.0, estimator="vio")
     run = run_landing(scenario, seed=0, run_dir=tmp_path / "land")
-    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
-    assert score.success, score.row()
-    assert score.e_xy < 0.5
+    assert_landed(run, scenario, 2.0)
     estimate = run["state_estimate"]
     valid = estimate[estimate["valid"] > 0.5]
     t = valid["time"].to_numpy()

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.math import RigidTransform
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import LeafSystem
 
