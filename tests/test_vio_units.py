@@ -105,3 +105,31 @@ def test_a_rendered_frame_without_texture_gives_no_keypoints_and_no_nan():
     estimate, odometry = rig.outputs()
     assert VIO_ODOMETRY.get(odometry, "tracked") == 0
     assert np.all(np.isfinite(estimate)) and STATE_ESTIMATE.get(estimate, "valid") == 1.0
+
+
+def test_a_restart_whose_smoother_update_fails_is_bridged_then_retried(monkeypatch):
+    """A keyframe that diverges, then a restart that diverges too (an indeterminate system, as
+    the rendered source once gave, which crashed the flight): the VIO keeps its IMU-propagated
+    estimate, never NaN, and restarts at a later keyframe."""
+    from alight.systems.vio import backend
+    rig = RestRig()
+    rig.advance(1.0, lambda t: rig.frame(np.floor(t * 30) / 30))
+    failures = {"left": 3}
+    real_update = backend.SlidingWindow._update
+
+    def failing_update(self, *args, **kwargs):
+        if failures["left"] > 0:
+            failures["left"] -= 1
+            raise backend.DivergedError("smoother update failed: indeterminate linear system")
+        return real_update(self, *args, **kwargs)
+    monkeypatch.setattr(backend.SlidingWindow, "_update", failing_update)
+    rig.advance(1.2, lambda t: rig.frame(np.floor(t * 30) / 30))
+    estimate, odometry = rig.outputs()
+    assert failures["left"] == 0                       # the keyframe and two restarts failed
+    assert np.all(np.isfinite(estimate)) and STATE_ESTIMATE.get(estimate, "valid") == 1.0
+    assert np.linalg.norm(STATE_ESTIMATE.get(estimate, "p_EB") - [0, 0, 0.22]) < 0.05
+    rig.advance(1.6, lambda t: rig.frame(np.floor(t * 30) / 30))
+    estimate, odometry = rig.outputs()
+    assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.TRACKING
+    assert VIO_ODOMETRY.get(odometry, "restarts") >= 3
+    np.testing.assert_allclose(STATE_ESTIMATE.get(estimate, "p_EB"), [0, 0, 0.22], atol=0.02)

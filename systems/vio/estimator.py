@@ -72,6 +72,8 @@ class VioEstimator:
         self.p = params
         self.status = VioStatus.INITIALIZING
         self.restarts = 0
+        self.failed_restarts = 0       # restarts whose smoother update failed as well
+        self._needs_restart = False
         self.frontend_time = 0.0   # s, last frame
         self.backend_time = 0.0    # s, last keyframe
         self.tracked = 0
@@ -143,12 +145,19 @@ class VioEstimator:
         pim = gtsam.PreintegratedCombinedMeasurements(window.imu_params, window.state.bias)
         self._integrate(pim, window.state.t, frame.stamp)
         try:
-            if self.status == VioStatus.LOST:
+            if self.status == VioStatus.LOST or self._needs_restart:
                 self._restart(frame.stamp, pim, observations)
             else:
-                window.add_keyframe(frame.stamp, pim, observations)
-        except DivergedError:
-            self._restart(frame.stamp, pim, observations)
+                try:
+                    window.add_keyframe(frame.stamp, pim, observations)
+                except DivergedError:
+                    self._restart(frame.stamp, pim, observations)
+        except DivergedError:   # the restart failed too (e.g. too few constrained landmarks):
+            self.failed_restarts += 1   # bridge on the IMU from the last good keyframe and
+            self._needs_restart = True  # restart at the next keyframe; LOST after max_imu_only
+            self.backend_time = time.perf_counter() - start
+            return self._update_status(frame.stamp)
+        self._needs_restart = False
         self.backend_time = time.perf_counter() - start
         self.status = VioStatus.TRACKING
         self._after_keyframe()
