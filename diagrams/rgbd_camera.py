@@ -22,7 +22,7 @@ def add_rgbd_scene(plant, params: RgbdCameraParams, ground_textured: bool) -> bo
     if params.source != "rendered" or ground_textured:
         return ground_textured
     plant.RegisterVisualGeometry(plant.world_body(), GeometryInstance(
-        RigidTransform(), Mesh(str(model_path("target_ground.obj"))), "rgbd_ground_texture"))
+        RigidTransform(), Mesh(str(model_path("rgbd_ground.obj"))), "rgbd_ground_texture"))
     return True
 
 

@@ -3,7 +3,10 @@
 target_pattern.png: the landing pattern (alight.systems.perception.pattern) on the platform;
 target_ground.png: a 32 m ground tile (asphalt, grass, lane marks) with look-alike squares that the
 detector must reject (plain tiles, ring-only, cross-only, helipad H, checkerboard, nested squares,
-a diagonal cross); target_pattern.obj and target_ground.obj: textured squares. The files are
+a diagonal cross); target_pattern.obj and target_ground.obj: textured squares; rgbd_ground.png and
+rgbd_ground.obj: the field the forward VIO camera sees (issue 8): gravel, asphalt and grass with
+centimetre-scale detail well above the camera's pixel noise, which target_ground's smooth 3 cm
+texels lack (the rendered VIO found no corners within its depth range there). The files are
 committed; tests/test_target_vehicle.py checks that they match this generator.
 """
 from pathlib import Path
@@ -17,6 +20,8 @@ GROUND_TILE = 32.0       # m per texture repeat
 GROUND_PIXELS = 1024
 GROUND_EXTENT = 800.0    # m, side of the ground (25 x 25 tiles)
 PATTERN_PIXELS = 2048
+RGBD_GROUND_TILE = 16.0  # m per texture repeat: 1.6 cm texels
+RGBD_GROUND_EXTENT = 400.0
 
 
 def ground_texture(seed: int = 5) -> np.ndarray:
@@ -51,6 +56,25 @@ def ground_texture(seed: int = 5) -> np.ndarray:
         angle = rng.uniform(0, 90)
         _paste_rotated(image, tile, centre, angle)
     return image
+
+
+def rgbd_ground_texture(seed: int = 11) -> np.ndarray:
+    """The VIO camera's ground tile (BGR uint8), deterministic: gravel (1.6 and 6 cm grains) on
+    patches of asphalt and grass (0.5 m), bright enough under the renderer's light that the
+    grain contrast (about 25 grey levels) stands well above 2 grey levels of pixel noise."""
+    rng = np.random.default_rng(seed)
+    n = GROUND_PIXELS
+
+    def layer(sigma):
+        noise = _periodic_blur(rng.normal(0, 1, (n, n)), sigma)
+        return noise / noise.std()
+
+    patches = layer(30)
+    grey = 150 + 20 * patches + 18 * layer(4) + 18 * layer(1)
+    image = np.repeat(grey[..., None], 3, axis=2)
+    grass = np.clip((layer(60) - 0.6) * 2, 0, 1)[..., None]
+    image = image * (1 - grass) + grass * (image * [0.55, 1.0, 0.7])
+    return np.clip(image, 0, 255).astype(np.uint8)
 
 
 def _periodic_blur(noise: np.ndarray, sigma: float) -> np.ndarray:
@@ -155,9 +179,12 @@ def generated_files() -> dict[str, bytes]:
     files["target_pattern.png"] = cv2.imencode(".png", cv2.cvtColor(template, cv2.COLOR_GRAY2BGR))[1] \
         .tobytes()
     files["target_ground.png"] = cv2.imencode(".png", ground_texture())[1].tobytes()
+    files["rgbd_ground.png"] = cv2.imencode(".png", rgbd_ground_texture())[1].tobytes()
     tiles = int(round(GROUND_EXTENT / GROUND_TILE))
+    rgbd_tiles = int(round(RGBD_GROUND_EXTENT / RGBD_GROUND_TILE))
     for name, half_side, n in (("target_pattern", pattern.params.side / 2, 1),
-                               ("target_ground", tiles * GROUND_TILE / 2, tiles)):
+                               ("target_ground", tiles * GROUND_TILE / 2, tiles),
+                               ("rgbd_ground", rgbd_tiles * RGBD_GROUND_TILE / 2, rgbd_tiles)):
         obj, mtl = textured_grid_obj(name, half_side, n, 0.0)
         files[f"{name}.obj"], files[f"{name}.mtl"] = obj.encode(), mtl.encode()
     return files

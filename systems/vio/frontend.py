@@ -3,7 +3,10 @@ virtual stereo measurement of L(2), and keyframe selection.
 
 - Rendered frames: Shi-Tomasi corners tracked frame to frame with pyramidal Lucas-Kanade (OpenCV),
   outliers rejected by RANSAC on the fundamental matrix, new corners detected away from the tracked
-  ones to keep `max_features`; depth looked up per keypoint (median of the valid depths around it).
+  ones to keep `max_features`, and only where the depth image has depth (a corner beyond the depth
+  range cannot start a landmark: L(2) needs its depth; the horizon's corners, which are the
+  strongest in a forward view, would otherwise take the whole budget); depth looked up per keypoint
+  (median of the valid depths around it).
 - Geometric frames already carry keypoints, track ids and per-keypoint depth.
 
 L(2): z_v = u_v(T_CvC u^-1(z, D)): the keypoint back-projected with its depth, moved into the
@@ -105,18 +108,20 @@ class KltTracker:
             uv, ids = moved[ok], ids[ok]
         else:
             uv, ids = np.zeros((0, 2), np.float32), np.zeros(0, np.int64)
-        uv, ids = self._detect(image, uv, ids)
+        uv, ids = self._detect(image, frame.depth, uv, ids)
         self._previous, self._uv, self._ids = image, uv, ids
         depth = lookup_depth(frame.depth, uv, p.depth_window) if frame.depth is not None \
             else np.full(len(uv), np.nan)
         return Keypoints(ids.copy(), uv.astype(float), depth)
 
-    def _detect(self, image, uv, ids):
+    def _detect(self, image, depth, uv, ids):
         p = self._p
         wanted = p.max_features - len(uv)
         if wanted <= p.max_features // 4:
             return uv, ids
         mask = np.full(image.shape, 255, np.uint8)
+        if depth is not None:
+            mask[~(np.isfinite(depth) & (depth > 0))] = 0
         for u, v in np.rint(uv).astype(int):
             cv2.circle(mask, (int(u), int(v)), int(p.min_corner_distance), 0, -1)
         corners = cv2.goodFeaturesToTrack(image, wanted, p.corner_quality, p.min_corner_distance,
