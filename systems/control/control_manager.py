@@ -57,7 +57,8 @@ import enum
 import functools
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
                                      TRACKER_STATUS, VectorLayout)
@@ -183,7 +184,8 @@ class _Decision:
 class ControlManager(LeafSystem):
     """Inputs  `state_estimate` STATE_ESTIMATE; `goal` REFERENCE (chi in E; only without
             trackers); `switch_request` (2) [request id, controller index] (optional:
-            unconnected means no requests); `arm` (1, optional: unconnected means armed); per
+            unconnected means no requests); `arm` (2) [arm, thrust enable] (optional:
+            unconnected means armed and flying); per
             controller i (in the order of `names`): `fc_command_i` FC_COMMAND,
             `controller_status_i` CONTROLLER_STATUS, `disturbance_estimate_i`
             DISTURBANCE_ESTIMATE (optional, for controllers that estimate disturbances M(35)-(37));
@@ -259,10 +261,16 @@ class ControlManager(LeafSystem):
         self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
+        # The tick's decision, computed once per context change: the `active_i`,
+        # `tracker_active_k` and `reference` outputs and the update all read it.
+        self._decision = self.DeclareCacheEntry(
+            "decision", ValueProducer(allocate=AbstractValue.Make(None).Clone,
+                                      calc=lambda context, value: value.set_value(
+                                          self._compute_decision(context))), everything)
         self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
                                      everything)
         self.DeclareVectorOutputPort("last_disturbance", DISTURBANCE_ESTIMATE.size,
-                                     self._calc_disturbance,
+                                     functools.partial(self._forward_active, self._disturbances),
                                      {self.all_input_ports_ticket(), self.all_state_ticket()})
         self.DeclareVectorOutputPort("desired_acceleration", 3, functools.partial(
             self._forward_active, self._accelerations),
@@ -285,11 +293,6 @@ class ControlManager(LeafSystem):
             raise ValueError(f"unknown controller {name!r}: expected one of {self.names}")
         return self.names.index(name)
 
-    def tracker_index(self, name: str) -> int:
-        if name not in self.trackers:
-            raise ValueError(f"unknown tracker {name!r}: expected one of {self.trackers}")
-        return self.trackers.index(name)
-
     # --- outputs ------------------------------------------------------------------------------
 
     def _calc_command(self, context, output):
@@ -304,9 +307,6 @@ class ControlManager(LeafSystem):
         if not command_is_usable(command):   # never forward a NaN; the failsafe takes over next
             command = context.get_discrete_state(self._last_command).get_value()
         output.SetFromVector(command)
-
-    def _calc_disturbance(self, context, output):
-        self._forward_active(self._disturbances, context, output)
 
     def _forward_active(self, ports, context, output):
         """The active controller's value on `ports` (one per controller), NaN where unconnected."""
@@ -356,6 +356,10 @@ class ControlManager(LeafSystem):
     # --- the decision -------------------------------------------------------------------------
 
     def _decide(self, context) -> _Decision:
+        """This tick's decision (cached; do not modify it)."""
+        return self._decision.Eval(context)
+
+    def _compute_decision(self, context) -> _Decision:
         S = _STATE
         now = context.get_time()
         x = context.get_discrete_state(self._state).get_value().copy()
