@@ -19,7 +19,6 @@ from alight.systems.control.linear_mpc import MPC_DISTURBANCE, LinearMpc, Linear
 from alight.systems.mission.scripted_reference import ScriptedReference
 from alight.systems.mission.waypoints import Phase, WaypointMission, WaypointMissionParams
 from alight.systems.params import load_params
-from alight.systems.rotations import tilt_deg
 from alight.systems.sensors.mocap import MocapParams
 
 
@@ -188,21 +187,3 @@ def mission_duration(waypoints: np.ndarray, max_duration: float) -> float:
     legs = np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum() if len(waypoints) > 1 else 0.0
     return min(max_duration, 15.0 + np.linalg.norm(waypoints[0]) / 2 + legs / 2.0
                + waypoints[:, 2].max() / 0.6 + 5.0 * len(waypoints))
-
-
-def summarize_flight(run: RunLog) -> list[str]:
-    """Printed after `alight fly`: outcome, distances to the waypoints, controller timing."""
-    truth = run["ground_truth"]
-    p = run.field("ground_truth", "p_WB").to_numpy()
-    waypoints = np.asarray(run.metadata["waypoints"], float)
-    closest = [float(np.min(np.linalg.norm(p - w, axis=1))) for w in waypoints]
-    status = run["controller_status"]
-    solve = status["compute_time"][status["valid"] > 0.5] * 1e3
-    q = run.field("ground_truth", "q_WB").to_numpy()
-    tilt = tilt_deg(q)
-    return [f"landed and disarmed   {run.metadata['landed']} after {truth['time'].iloc[-1]:.1f} s",
-            "closest approach      " + ", ".join(f"{d:.2f} m" for d in closest),
-            f"max speed / tilt      {np.linalg.norm(run.field('ground_truth', 'v_WB'), axis=1).max():.2f}"
-            f" m/s / {tilt.max():.1f} deg",
-            f"MPC tick time         mean {solve.mean():.2f} ms, max {solve.max():.2f} ms",
-            f"run folder            {run.path}"]

@@ -26,6 +26,18 @@ def simulate(diagram, duration: float, seed: int, meshcat: Meshcat | None = None
     """Seeds every random source from `seed`, lets `prepare(context)` change the seeded context
     (e.g. a body's mass), runs to `duration` (or until `stop_when(context)` is true) and writes
     the replay if asked."""
+    simulator = start_simulation(diagram, seed, meshcat, record, realtime_rate, stop_when,
+                                 prepare)
+    simulator.AdvanceTo(duration)
+    finish_recording(meshcat, record)
+    return simulator
+
+
+def start_simulation(diagram, seed: int, meshcat: Meshcat | None = None,
+                     record: str | Path | None = None, realtime_rate: float = 0.0,
+                     stop_when=None, prepare=None) -> Simulator:
+    """`simulate` up to the first AdvanceTo: an initialized, seeded Simulator (recording when
+    `meshcat` and `record` are given), for callers that advance it themselves."""
     simulator = Simulator(diagram)
     if stop_when is not None:
         simulator.set_monitor(lambda context: EventStatus.ReachedTermination(
@@ -38,11 +50,14 @@ def simulate(diagram, duration: float, seed: int, meshcat: Meshcat | None = None
     if meshcat is not None and record is not None:
         start_recording(meshcat)
     simulator.Initialize()
-    simulator.AdvanceTo(duration)
+    return simulator
+
+
+def finish_recording(meshcat: Meshcat | None, record: str | Path | None) -> None:
+    """Writes the replay `start_simulation` recorded (nothing without both)."""
     if meshcat is not None and record is not None:
         path = write_recording(meshcat, record)
         print(f"Replay written to {path} (open it in a browser; no server needed)", flush=True)
-    return simulator
 
 
 def evaluate(system, port: str, root_context):

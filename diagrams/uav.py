@@ -21,7 +21,6 @@ import functools
 from pathlib import Path
 
 import numpy as np
-from pydrake.common import RandomGenerator
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
@@ -35,8 +34,7 @@ from alight.diagrams.fly import mocap_odometry
 from alight.diagrams.hover import default_run_dir
 from alight.diagrams.run_log import RunLog, RunLoggers, write_run_folder
 from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import evaluate
-from alight.diagrams.visualization import start_recording, write_recording
+from alight.diagrams.simulation import evaluate, finish_recording, start_simulation
 from alight.models import model_path
 from alight.systems.mission.uav_manager import (UAV_STATUS, Routine, UavCommand, UavManager,
                                                 UavManagerParams, UavRefusal)
@@ -166,9 +164,8 @@ class Mission:
         self.results: list[RoutineResult] = []
         self.run_log: RunLog | None = None
         self.generated = None      # the last trajectory of `fly_through`
-        self._recording = None
         # How simulated time advances (real-time pacing on a MAVLink vehicle), and what
-        # `close` does first (the final safe command, closing the link).
+        # `close` does first (the final safe command and closing the link; writing a replay).
         self.advance_to = simulator.AdvanceTo
         self.closers: list = []
 
@@ -187,16 +184,12 @@ class Mission:
         if log is not None:
             log(builder, onboard.loggers)
         diagram = builder.Build()
-        simulator = Simulator(diagram)
-        diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(seed))
-        simulator.set_target_realtime_rate(realtime_rate)
-        if meshcat is not None and record is not None:
-            start_recording(meshcat)
-        simulator.Initialize()
+        simulator = start_simulation(diagram, seed, meshcat, record, realtime_rate)
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir("mission", seed)
         mission = cls(diagram, onboard, simulator, run_dir,
                       {"seed": seed, "vehicle_config": vehicle_config}, strict)
-        mission._recording = (meshcat, record) if meshcat is not None and record else None
+        if meshcat is not None and record is not None:
+            mission.closers.append(lambda: finish_recording(meshcat, record))
         return mission
 
     # --- routines (M Sec. 7.6) ---------------------------------------------------------------
@@ -335,15 +328,10 @@ class Mission:
         return result
 
     def close(self) -> RunLog:
-        """Runs the closers (MAVLink: the final safe command), writes the run folder (logs of
-        the whole mission) and returns it."""
+        """Runs the closers (MAVLink: the final safe command; a replay), writes the run folder
+        (logs of the whole mission) and returns it."""
         while self.closers:
             self.metadata.setdefault("closed", []).append(str(self.closers.pop(0)()))
-        if self._recording is not None:
-            path = write_recording(*self._recording)
-            print(f"Replay written to {path} (open it in a browser; no server needed)",
-                  flush=True)
-            self._recording = None
         if self.run_log is None:
             write_run_folder(self.run_dir, self.onboard.loggers, self.context, {
                 "command": "mission", "duration": self.time, **self.metadata,
@@ -450,5 +438,6 @@ def summarize_managed_flight(run: RunLog) -> list[str]:
         table = run[stream]
         busy = table["compute_time"][table["valid"] > 0.5] * 1e3
         if len(busy) and busy.max() > 0:
-            lines.append(f"{stream + ' tick':34s} mean {busy.mean():.2f} ms, max {busy.max():.2f} ms")
+            lines.append(f"{stream + ' tick':34s} mean {busy.mean():.2f} ms, "
+                         f"max {busy.max():.2f} ms")
     return lines + [f"run folder            {run.path}"]

@@ -19,11 +19,11 @@ import math
 import time
 from pathlib import Path
 
-from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.hover import default_run_dir
+from alight.diagrams.simulation import start_simulation
 from alight.diagrams.uav import Mission, add_managed_onboard
 from alight.hw.channel_odometry import channel_odometry
 from alight.hw.frame_channel import FrameSubscriber
@@ -66,11 +66,8 @@ def mavlink_mission(connect: str, frame_address: str | None = None,
         rates = link.request_message_rates()
         if follow_autopilot_clock:
             link.follow_autopilot_clock()
-        simulator = Simulator(diagram)
-        diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(seed))
-        simulator.set_target_realtime_rate(clock.rate)
-        clock.restart()
-        simulator.Initialize()
+        clock.restart()   # onboard time starts with the simulation
+        simulator = start_simulation(diagram, seed, realtime_rate=clock.rate)
     except BaseException:
         _close(link, frames)
         raise

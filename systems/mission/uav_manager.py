@@ -152,8 +152,8 @@ class UavManager(LeafSystem):
             `manager_status` MANAGER_STATUS; `landed` (1, optional: the landing tracker's
             touchdown, 1 once touched down); `fc_status` FC_STATUS (optional: take-off waits
             for the flight controller to report armed before the thrust is enabled)
-    Outputs `arm` (2) [arm, thrust enable] for the control manager; `switch_request` and `tracker_request` (2) [id,
-            index]; `trajectory_goal` (TrackerGoal or None), `landoff_goal` (LandoffGoal or
+    Outputs `arm` (2) [arm, thrust enable] for the control manager; `switch_request` and
+            `tracker_request` (2) [id, index]; `trajectory_goal` (TrackerGoal or None), `landoff_goal` (LandoffGoal or
             None), `speed_goal` (SpeedGoal or None); `group_request` (4) for the constraint
             manager (M Sec. 7.5: [id, constraint group, id, gain group]); `uav_status` UAV_STATUS
     `constraint_groups` and `gain_groups` name the constraint manager's group indices.
