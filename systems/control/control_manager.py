@@ -67,7 +67,8 @@ from alight.systems.control.force_controller import (ControllerReason, VehicleMo
                                                      command_is_usable, level_command)
 from alight.systems.control.touchdown import light_time
 from alight.systems.params import bounded
-from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.estimation.frames import reexpress_point
+from alight.systems.rotations import rotation_matrix
 
 
 class ManagerMode(enum.IntEnum):
@@ -578,9 +579,8 @@ class ControlManager(LeafSystem):
             return False
         R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
         p_OldNew = STATE_ESTIMATE.get(estimate, "p_OldNew")
-        yaw = heading(R_OldNew)
         for p, eta in (("hold_p", "hold_heading"), ("eland_p", "eland_heading"),
                        ("issued_p", "issued_heading")):
-            x[S.slice(p)] = R_OldNew.T @ (S.get(x, p) - p_OldNew)
-            x[S.slice(eta)] = S.get(x, eta) - yaw
+            x[S.slice(p)], x[S.slice(eta)] = np.split(reexpress_point(
+                np.append(S.get(x, p), S.get(x, eta)), R_OldNew, p_OldNew), [3])
         return True

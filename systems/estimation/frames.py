@@ -24,6 +24,16 @@ def compose(p_AB, q_AB, p_BC, q_BC) -> tuple[np.ndarray, np.ndarray]:
         quaternion_product(q_AB, q_BC)
 
 
+def reexpress_point(p, R_OldNew: np.ndarray, p_OldNew: np.ndarray) -> np.ndarray:
+    """Points of the old estimator frame in the new one (M Sec. 3.5): [x, y, z] or rows of them,
+    p_new = R_OldNew^T (p_old - p_OldNew); a fourth column (a heading) loses the frames' yaw."""
+    rows = np.array(p, float)
+    rows[..., :3] = (rows[..., :3] - p_OldNew) @ R_OldNew
+    if rows.shape[-1] > 3:
+        rows[..., 3] -= heading(R_OldNew)
+    return rows
+
+
 def reexpress(estimate: np.ndarray, p_AE, q_AE) -> np.ndarray:
     """A STATE_ESTIMATE in frame E expressed in frame A (frame fields left as they are)."""
     L = STATE_ESTIMATE

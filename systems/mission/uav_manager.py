@@ -30,7 +30,8 @@ from pydrake.systems.framework import LeafSystem
 from alight.systems.boundary import FC_STATUS, STATE_ESTIMATE, VectorLayout
 from alight.systems.control.control_manager import MANAGER_STATUS, ManagerMode, SafetyArea
 from alight.systems.params import bounded
-from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.estimation.frames import reexpress_point
+from alight.systems.rotations import rotation_matrix
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.landoff_tracker import LandoffGoal
 from alight.systems.tracking.speed_tracker import SpeedGoal
@@ -139,12 +140,9 @@ class UavMemory:
 def reexpress_rows(rows, estimate: np.ndarray) -> np.ndarray:
     """Rows [x, y, z(, heading)] of the old estimator frame in the new one, by the last switch's
     X_OldNew that `estimate` reports (M Sec. 3.5)."""
-    R = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
-    rows = np.array(rows, float, ndmin=2)
-    rows[:, :3] = (rows[:, :3] - STATE_ESTIMATE.get(estimate, "p_OldNew")) @ R
-    if rows.shape[1] > 3:
-        rows[:, 3] -= heading(R)
-    return rows
+    return reexpress_point(np.array(rows, float, ndmin=2),
+                           rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew")),
+                           STATE_ESTIMATE.get(estimate, "p_OldNew"))
 
 
 class UavManager(LeafSystem):
@@ -153,8 +151,9 @@ class UavManager(LeafSystem):
             touchdown, 1 once touched down); `fc_status` FC_STATUS (optional: take-off waits
             for the flight controller to report armed before the thrust is enabled)
     Outputs `arm` (2) [arm, thrust enable] for the control manager; `switch_request` and
-            `tracker_request` (2) [id, index]; `trajectory_goal` (TrackerGoal or None), `landoff_goal` (LandoffGoal or
-            None), `speed_goal` (SpeedGoal or None); `group_request` (4) for the constraint
+            `tracker_request` (2) [id, index]; `trajectory_goal` (TrackerGoal or None),
+            `landoff_goal` (LandoffGoal or None), `speed_goal` (SpeedGoal or None);
+            `group_request` (4) for the constraint
             manager (M Sec. 7.5: [id, constraint group, id, gain group]); `uav_status` UAV_STATUS
     `constraint_groups` and `gain_groups` name the constraint manager's group indices.
     """
@@ -261,8 +260,7 @@ class UavManager(LeafSystem):
                 memory.refusal = UavRefusal.EMERGENCY
             memory.phase = Phase.EMERGENCY
         if mode == ManagerMode.LANDED and memory.phase == Phase.EMERGENCY:
-            memory.phase, memory.arm, memory.thrust_enable = Phase.IDLE, 0.0, 0.0
-            memory.landoff = memory.trajectory = memory.speed = None
+            self._disarm(memory, done=memory.done)
 
     def _refuse(self, memory: UavMemory, command: UavCommand, reason: UavRefusal) -> None:
         memory.command_id, memory.routine = command.id, command.routine
@@ -405,8 +403,8 @@ class UavManager(LeafSystem):
         if armed:
             memory.thrust_enable = 1.0
         elif now - memory.start > self.params.arm_timeout:
-            self._disarm(memory)
-            memory.done, memory.refusal = False, UavRefusal.ARMING_DENIED
+            self._disarm(memory, done=False)
+            memory.refusal = UavRefusal.ARMING_DENIED
 
     def _reached(self, memory: UavMemory, estimate, now: float) -> bool:
         if memory.trajectory is not None and memory.routine == Routine.TRAJECTORY and \
@@ -417,6 +415,8 @@ class UavManager(LeafSystem):
         return bool(np.linalg.norm(p - memory.target[:3]) <= self.params.position_tolerance
                     and np.linalg.norm(v) <= self.params.speed_tolerance)
 
-    def _disarm(self, memory: UavMemory) -> None:
-        memory.phase, memory.arm, memory.thrust_enable, memory.done = Phase.IDLE, 0.0, 0.0, True
+    @staticmethod
+    def _disarm(memory: UavMemory, done: bool = True) -> None:
+        """Idle on the ground, disarmed, no goals; `done` ends the running routine."""
+        memory.phase, memory.arm, memory.thrust_enable, memory.done = Phase.IDLE, 0.0, 0.0, done
         memory.landoff = memory.trajectory = memory.speed = None

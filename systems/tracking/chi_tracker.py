@@ -18,6 +18,7 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.control.force_controller import advance_reference
+from alight.systems.estimation.frames import reexpress_point
 from alight.systems.estimation.heading import wrap_angle
 from alight.systems.rotations import heading, rotation_matrix
 
@@ -45,11 +46,6 @@ class ChiMemory:
     goal: object = None
     active: bool = False
     frame_counter: float = np.nan
-
-
-def reexpress_point(p: np.ndarray, R_OldNew: np.ndarray, p_OldNew: np.ndarray) -> np.ndarray:
-    """A point of the old estimator frame in the new one (M Sec. 3.5)."""
-    return R_OldNew.T @ (np.asarray(p, float) - p_OldNew)
 
 
 def reexpress_reference(chi: np.ndarray, R_OldNew: np.ndarray, p_OldNew: np.ndarray

@@ -29,7 +29,8 @@ from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.force_controller import VehicleModel, advance_reference
 from alight.systems.control.touchdown import light_time
 from alight.systems.params import ConfigError, bounded, load_params
-from alight.systems.tracking.chi_tracker import ChiMemory, ChiReason, ChiTracker, reexpress_point
+from alight.systems.estimation.frames import reexpress_point
+from alight.systems.tracking.chi_tracker import ChiMemory, ChiReason, ChiTracker
 
 ACTIONS = ("takeoff", "land")
 

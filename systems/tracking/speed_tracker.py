@@ -28,7 +28,8 @@ from alight.systems.control.force_controller import advance_reference
 from alight.systems.estimation.heading import wrap_angle
 from alight.systems.params import bounded, load_params
 from alight.systems.rotations import heading
-from alight.systems.tracking.chi_tracker import ChiMemory, ChiReason, ChiTracker, reexpress_point
+from alight.systems.estimation.frames import reexpress_point
+from alight.systems.tracking.chi_tracker import ChiMemory, ChiReason, ChiTracker
 
 
 def _vector2(value, name: str):

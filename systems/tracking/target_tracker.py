@@ -28,7 +28,8 @@ from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
 from alight.systems.mission.reference_generator import filter_reference, predict_target
 from alight.systems.params import bounded, load_params
 from alight.systems.rotations import rotation_matrix
-from alight.systems.tracking.chi_tracker import ChiMemory, ChiReason, ChiTracker, reexpress_point
+from alight.systems.estimation.frames import reexpress_point
+from alight.systems.tracking.chi_tracker import ChiMemory, ChiReason, ChiTracker
 from alight.systems.tracking.speed_tracker import clip_norm
 
 
