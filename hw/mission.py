@@ -14,9 +14,6 @@ offboard timeout is an offboard loss, and PX4 fails safe). `close` (or leaving t
 sends the final safe command of the real-time runner (disarm on the ground, failsafe descent in
 the air), closes the link and writes the run folder.
 """
-import dataclasses as dc
-import math
-import time
 from pathlib import Path
 
 from pydrake.systems.analysis import Simulator
@@ -31,7 +28,7 @@ from alight.hw.hil import MissionUnavailable
 from alight.hw.link import MavlinkLink
 from alight.hw.mavlink_vehicle import (LINK_STATUS, MavlinkVehicleParams, command_sender,
                                        load_mavlink_vehicle_params, make_mavlink_vehicle)
-from alight.hw.realtime import WallClock
+from alight.hw.realtime import Pacer, WallClock
 
 
 def mavlink_mission(connect: str, frame_address: str | None = None,
@@ -76,7 +73,7 @@ def mavlink_mission(connect: str, frame_address: str | None = None,
         "seed": seed, "connect": connect, "vehicle": params, "message_rates": rates,
         "realtime_rate": realtime_rate, "follow_autopilot_clock": follow_autopilot_clock},
         strict)
-    pacer = _AutopilotPacer(link) if follow_autopilot_clock else None
+    pacer = Pacer(link.autopilot_time, stall=1.0) if follow_autopilot_clock else None
     mission.advance_to = lambda t: _advance(simulator, t, tick, pacer)
 
     def safe_stop() -> str:
@@ -98,22 +95,6 @@ def _advance(simulator: Simulator, t_end: float, tick: float, pacer) -> None:
         if pacer is not None:
             pacer.wait_until(t)
         simulator.AdvanceTo(t)
-
-
-@dc.dataclass
-class _AutopilotPacer:
-    """Waits until the autopilot's clock reaches a time (at most `stall` s of wall time: a
-    link that stops does not hang the mission; the link's own loss detection takes over)."""
-    link: MavlinkLink
-    stall: float = 1.0
-
-    def wait_until(self, t: float) -> None:
-        start = time.monotonic()
-        while time.monotonic() - start < self.stall:
-            reached = self.link.autopilot_time()
-            if math.isfinite(reached) and reached >= t:
-                return
-            time.sleep(0.0005)
 
 
 def _close(link: MavlinkLink, frames: FrameSubscriber | None) -> None:

@@ -76,8 +76,8 @@ class RealtimeReport:
                                                              if self.error else [])
 
 
-class _Pacer:
-    """Waits for a peer's clock (see `run_realtime`)."""
+class Pacer:
+    """Waits for a peer's clock (see `run_realtime`); returns the wall time waited."""
 
     def __init__(self, peer_time: Callable[[], float], stall: float):
         self._peer_time, self._stall = peer_time, stall
@@ -143,7 +143,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     stop, previous = _install_stop_handlers()
     ticks = overruns = 0
     max_lag = paced_wait = 0.0
-    pacer = _Pacer(pace, pace_stall) if pace is not None else None
+    pacer = Pacer(pace, pace_stall) if pace is not None else None
     interrupted = False
     error = None
     clock.restart()
