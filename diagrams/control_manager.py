@@ -247,11 +247,17 @@ def add_control_manager(builder, config: ControlManagerConfig,
         for k, entry in enumerate(trackers)})
 
 
-def connect_managed_odometry(builder, odometry, managed: ManagedControllers, estimate) -> None:
-    """An odometry with `connect_command` (the estimator bank) is given the issued command and
-    the active controller's unbiased desired acceleration M(53) (M Sec. 3.1.1)."""
+def connect_managed_vehicle(builder, managed: ManagedControllers, vehicle, arm, tracker_request,
+                            odometry, estimate) -> None:
+    """What drives the manager (the `arm` [arm, thrust enable] and `tracker_request` ports of a
+    mission or the UAV manager) and where its command goes: the vehicle, and an odometry with
+    `connect_command` (the estimator bank), which is also given the active controller's
+    unbiased desired acceleration M(53) (M Sec. 3.1.1)."""
+    manager = managed.manager
+    builder.Connect(arm, manager.GetInputPort("arm"))
+    builder.Connect(tracker_request, manager.GetInputPort("tracker_request"))
+    builder.Connect(manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     if hasattr(odometry, "connect_command"):
-        manager = managed.manager
         odometry.connect_command(builder, manager.GetOutputPort("fc_command"),
                                  manager.GetOutputPort("desired_acceleration"), estimate)
 

@@ -15,7 +15,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.control_manager import (ControlManagerConfig, ManagedControllers,
                                              add_control_manager, add_managed_logging,
-                                             connect_managed_odometry,
+                                             connect_managed_vehicle,
                                              load_control_manager_config)
 from alight.diagrams.controllers import load_controllers_config
 from alight.diagrams.fly import mocap_odometry
@@ -92,12 +92,8 @@ def add_landing_managed(builder: DiagramBuilder, scenario: LandingScenario, vehi
     managed = add_control_manager(builder, config, controllers_config, estimate, goals=goals,
                                   fc_attitude=vehicle.GetOutputPort("fc_attitude"),
                                   target_estimate=perception.target_estimate)
-    manager = managed.manager
-    builder.Connect(mission.GetOutputPort("arm"), manager.GetInputPort("arm"))
-    builder.Connect(requests.GetOutputPort("tracker_request"),
-                    manager.GetInputPort("tracker_request"))
-    builder.Connect(manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    connect_managed_odometry(builder, odometry, managed, estimate)
+    connect_managed_vehicle(builder, managed, vehicle, mission.GetOutputPort("arm"),
+                            requests.GetOutputPort("tracker_request"), odometry, estimate)
     # "goal": the mission's own L Sec. 6.3 reference, beside the issued one ("reference").
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
                                   mission.GetOutputPort("reference"), config.period)

@@ -27,7 +27,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.control_manager import (GOAL_KINDS, ControlManagerConfig, ManagedControllers,
                                              add_control_manager, add_managed_logging,
-                                             connect_managed_odometry,
+                                             connect_managed_vehicle,
                                              load_control_manager_config)
 from alight.diagrams.controllers import ControllersConfig, load_controllers_config
 from alight.diagrams.fly import mocap_odometry
@@ -92,14 +92,12 @@ def add_managed_onboard(builder, vehicle, config: ControlManagerConfig | None = 
     _connect_groups(builder, groups, estimate, uav, managed)
     builder.Connect(estimate, uav.GetInputPort("state_estimate"))
     builder.Connect(vehicle.GetOutputPort("fc_status"), uav.GetInputPort("fc_status"))
-    builder.Connect(uav.GetOutputPort("arm"), manager.GetInputPort("arm"))
-    builder.Connect(uav.GetOutputPort("tracker_request"), manager.GetInputPort("tracker_request"))
     builder.Connect(manager.GetOutputPort("manager_status"), uav.GetInputPort("manager_status"))
     landing = managed.trackers[uav.params.landing_tracker]
     if landing.HasOutputPort("landed"):
         builder.Connect(landing.GetOutputPort("landed"), uav.GetInputPort("landed"))
-    builder.Connect(manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    connect_managed_odometry(builder, odometry, managed, estimate)
+    connect_managed_vehicle(builder, managed, vehicle, uav.GetOutputPort("arm"),
+                            uav.GetOutputPort("tracker_request"), odometry, estimate)
     builder.ExportInput(uav.GetInputPort("command"), "uav_command")
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
                                   manager.GetOutputPort("reference"), config.period)
