@@ -75,13 +75,11 @@ def _keep_meshcat_open(args) -> None:
 
 
 def _fly(args) -> int:
-    from alight.diagrams.fly import parse_waypoints
     from alight.diagrams.simulation import make_meshcat
-    from alight.diagrams.uav import (FlightPlan, fly_plan, read_trajectory_file,
-                                     summarize_managed_flight)
+    from alight.diagrams.uav import fly_plan, summarize_managed_flight
     from alight.systems.params import ConfigError
     try:
-        plan = _flight_plan(args, parse_waypoints, read_trajectory_file, FlightPlan)
+        plan = _flight_plan(args)
         stack = _fly_stack(args)
     except (ValueError, ConfigError) as e:
         print(f"alight fly: {e}", file=sys.stderr)
@@ -96,8 +94,10 @@ def _fly(args) -> int:
     return 0
 
 
-def _flight_plan(args, parse_waypoints, read_trajectory_file, FlightPlan):
+def _flight_plan(args):
     """The --waypoints or --trajectory of `alight fly` as a FlightPlan (ValueError if bad)."""
+    from alight.diagrams.fly import parse_waypoints
+    from alight.diagrams.uav import FlightPlan, read_trajectory_file
     if (args.waypoints is None) == (args.trajectory is None):
         raise ValueError("give exactly one of --waypoints and --trajectory")
     if not (args.takeoff_height > 0.0):
