@@ -188,6 +188,8 @@ def resolve_value(hint, value, source: str, base: Path, key: str):
                               f"{['!' + name for name in variants]}")
         return Tagged(value.tag, resolve_tree(variants[value.tag], value.value or {}, source,
                                               base, key + "."))
+    if variants and value is not None:   # untagged: the first variant, as Drake reads it
+        return resolve_tree(next(iter(variants.values())), value, source, base, key + ".")
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin is list and isinstance(value, list) and args:
         return [resolve_value(args[0], item, source, base, f"{key}[{i}]")
@@ -220,17 +222,48 @@ def _merge(schema, base_tree: dict, top: dict, prefix: str) -> dict:
 
 
 def apply_override(schema, tree: dict, text: str) -> dict:
-    """`tree` with one override 'key.sub: value' (YAML) applied; ConfigError names the key."""
+    """`tree` with one override 'key.sub: value' (YAML) applied; ConfigError names the key. A
+    mapping value merges into the present one; a file name replaces it with the file."""
     source = f"override {text!r}"
     item = _parse_yaml(text, source)
     if not isinstance(item, dict) or not item:
         raise ConfigError(f"{source}: expected 'key.sub: value'")
     for dotted, value in item.items():
-        path = str(dotted).split(".")
-        top = {path[-1]: value}
-        for key in reversed(path[:-1]):
-            top = {key: top}
-        tree = _merge(schema, tree, resolve_tree(schema, top, source, Path.cwd()), "")
+        tree = _set_path(schema, tree, str(dotted).split("."), value, source, str(dotted))
+    return tree
+
+
+def _variant_of(hint, value):
+    """The dataclass schema of a (resolved) value of type `hint`, or None."""
+    variants = _variants(hint)
+    if variants and isinstance(value, Tagged):
+        return variants.get(value.tag)
+    if variants:
+        return next(iter(variants.values()))
+    return _schema_of(hint)
+
+
+def _set_path(schema, tree: dict, path: list[str], value, source: str, full: str) -> dict:
+    hints = typing.get_type_hints(schema)
+    key = path[0]
+    if key not in hints:
+        raise ConfigError(f"{source}: key '{full}': '{key}' is not a parameter of "
+                          f"{schema.__name__} (allowed: {sorted(hints)})")
+    tree, old = dict(tree), tree.get(key)
+    nested = _variant_of(hints[key], old)
+    inner = old.value if isinstance(old, Tagged) else old
+    if len(path) == 1:
+        new = resolve_value(hints[key], value, source, Path.cwd(), full)
+        if nested is not None and isinstance(new, dict) and isinstance(inner, dict) and not (
+                isinstance(value, (str, Path)) or FROM_KEY in value):
+            new = _merge(nested, inner, new, full + ".")
+    elif nested is None:
+        raise ConfigError(f"{source}: key '{full}': '{key}' has no sub-keys")
+    else:
+        new = _set_path(nested, inner or {}, path[1:], value, source, full)
+    if isinstance(old, Tagged) and not isinstance(new, Tagged):
+        new = Tagged(old.tag, new)
+    tree[key] = new
     return tree
 
 
