@@ -19,7 +19,7 @@ from pupil_apriltags import Detector as AprilTagDetector
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from alight.diagrams.perception import load_target_estimator_params
-from alight.diagrams.target import DownCameraRig
+from alight.diagrams.world.target import DownCameraRig
 from alight.models.textures import GROUND_TILE
 from alight.systems.perception.detector import PatternDetector, Rectifier
 from alight.systems.perception.keypoint_tracker import KeypointTracker

@@ -13,7 +13,7 @@ import numpy as np
 from pydrake.systems.primitives import ConstantVectorSource
 
 from alight.diagrams.fly import fly_reference, load_linear_mpc
-from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
 from alight.systems.plant.wind import WindParams
 from alight.systems.rotations import tilt_deg
 from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults

@@ -6,7 +6,7 @@ import dataclasses as dc
 import tempfile
 import time
 
-from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
 from alight.diagrams.vio import evaluate_vio, fly_vio, load_rgbd_camera_params
 
 WAYPOINTS = [[0, 0, 2], [6, 0, 2], [6, 6, 3], [0, 0, 2]]

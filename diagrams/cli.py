@@ -42,7 +42,7 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
 
 def _vehicle_config(args, config=None):
     """`config` (default: the --config file) with the command line's wind overrides."""
-    from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+    from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
     from alight.systems.params import validate
     config = config or load_sim_vehicle_config(args.config)
     if args.wind is not None:
@@ -57,7 +57,7 @@ def _vehicle_config(args, config=None):
 
 def _hover(args) -> int:
     from alight.diagrams.hover import load_pilot_profile, run_hover
-    from alight.diagrams.simulation import make_meshcat
+    from alight.diagrams.running.simulation import make_meshcat
     config = _vehicle_config(args)
     profile = load_pilot_profile(args.profile)
     meshcat = make_meshcat(args.meshcat, args.record)
@@ -75,7 +75,7 @@ def _keep_meshcat_open(args) -> None:
 
 
 def _fly(args) -> int:
-    from alight.diagrams.simulation import make_meshcat
+    from alight.diagrams.running.simulation import make_meshcat
     from alight.diagrams.uav import fly_plan, summarize_managed_flight
     from alight.systems.params import ConfigError
     try:
@@ -135,7 +135,7 @@ def _fly_stack(args) -> dict:
 
 def _sysid(args) -> int:
     from pathlib import Path
-    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.running.paths import default_run_dir
     from alight.diagrams.sysid import identify_from_ulog, run_sysid
     from alight.systems.control.identification import IdentificationError
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("sysid", args.seed)
@@ -164,7 +164,7 @@ def _frame_address(value: str | None, url: str) -> str | None:
 
 def _sim_autopilot(args) -> int:
     import logging
-    from alight.diagrams.simulation import make_meshcat
+    from alight.diagrams.running.simulation import make_meshcat
     from alight.hw.connection import MavlinkConnectionError
     from alight.hw.sim_autopilot import load_sim_autopilot_params, run_sim_autopilot
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
@@ -197,7 +197,7 @@ def _sim_autopilot(args) -> int:
 
 def _hil(args) -> int:
     import logging
-    from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+    from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
     from alight.hw.connection import MavlinkConnectionError
     from alight.hw.hil import MissionOptions, MissionUnavailable, run_hil
     from alight.hw.link import LinkTimeout
@@ -225,7 +225,7 @@ def _hil(args) -> int:
     print("\n".join(result.lines()))
     if args.mission == "land":
         from alight.diagrams.landing import mission_transitions
-        from alight.diagrams.run_log import RunLog
+        from alight.diagrams.running.run_log import RunLog
         for at, mode, reason in mission_transitions(RunLog(result.run_dir)):
             print(f"  {at:6.2f} s  {mode.name:11s} ({reason.name.lower().replace('_', ' ')})")
     return 1 if result.report.error else 0
@@ -242,7 +242,7 @@ def _hil_mission_options(args) -> dict:
 
 
 def _track(args) -> int:
-    from alight.diagrams.simulation import make_meshcat
+    from alight.diagrams.running.simulation import make_meshcat
     from alight.diagrams.track import TrackExperiment, fly_track, score
     try:
         experiment = TrackExperiment(
@@ -266,7 +266,7 @@ def _track(args) -> int:
 
 def _thrust_curve(args) -> int:
     from pathlib import Path
-    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.running.paths import default_run_dir
     from alight.diagrams.thrust_fit import run_thrust_curve
     from alight.systems.plant.hexacopter import load_hexacopter_params
     from alight.systems.thrust_curve import ThrustCurve
@@ -305,11 +305,11 @@ def _check_landing_stack(args) -> None:
 
 
 def _land(args) -> int:
-    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.running.paths import default_run_dir
     from alight.diagrams.landing import mission_transitions, run_landing
     from alight.diagrams.landing_plots import plot_mission, plot_paths
     from alight.diagrams.landing_score import score_landing
-    from alight.diagrams.simulation import make_meshcat
+    from alight.diagrams.running.simulation import make_meshcat
     from alight.systems.params import ConfigError
     from alight.diagrams.landing_managed import tracker_switches
     try:
@@ -554,7 +554,7 @@ def make_parser() -> argparse.ArgumentParser:
 
 def _vio_eval(args) -> int:
     from alight.diagrams.fly import parse_waypoints
-    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.running.paths import default_run_dir
     from alight.diagrams.vio import evaluate_vio, fly_vio, load_rgbd_camera_params
     try:
         waypoints = parse_waypoints(args.waypoints)

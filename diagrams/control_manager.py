@@ -17,10 +17,10 @@ from pydrake.systems.primitives import ConstantValueSource
 
 from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
                                          make_controller)
-from alight.diagrams.hover import default_run_dir
-from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import simulate
+from alight.diagrams.running.paths import default_run_dir
+from alight.diagrams.running.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import simulate
 from alight.diagrams.track import add_faulty_mocap
 from alight.models import model_path
 from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_STATUS,

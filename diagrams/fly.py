@@ -6,11 +6,11 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from alight.diagrams.hover import default_run_dir
+from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.mocap import add_mocap
-from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import DisarmedAfter, evaluate, simulate
+from alight.diagrams.running.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import DisarmedAfter, evaluate, simulate
 from alight.models import model_path
 from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.arm_gate import ArmGate

@@ -1,15 +1,15 @@
 """The hover demo: the scripted pilot flies the simulated vehicle through take-off, hover and
 landing on an attitude/thrust profile (no position controller)."""
 import dataclasses as dc
-import datetime
 from pathlib import Path
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import simulate
+from alight.diagrams.running.paths import default_run_dir
+from alight.diagrams.running.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import simulate
 from alight.models import model_path
 from alight.systems.control.scripted_pilot import PilotModel, PilotProfile, ScriptedPilot
 from alight.systems.params import load_params
@@ -50,11 +50,6 @@ class HoverSummary:
                 f"touchdown speed   {self.touchdown_speed:6.2f} m/s",
                 f"disarmed at end   {self.disarmed_at_end}",
                 f"run folder        {self.run_dir}"]
-
-
-def default_run_dir(command: str, seed: int) -> Path:
-    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path("runs") / f"{stamp}-{command}-s{seed}"
 
 
 def add_pilot_onboard(builder, vehicle, profile: PilotProfile, model: PilotModel,

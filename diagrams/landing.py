@@ -12,11 +12,12 @@ from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.estimation import scenario_odometry
 from alight.diagrams.fly import MpcLoop, add_mpc_control, add_mpc_logging, load_linear_mpc
-from alight.diagrams.hover import default_run_dir
+from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.perception import TargetPerceptionPorts, add_target_perception
-from alight.diagrams.run_log import RunLog, RunLoggers, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, load_sim_vehicle_config, make_sim_vehicle
-from alight.diagrams.simulation import DisarmedAfter, evaluate, simulate
+from alight.diagrams.running.run_log import RunLog, RunLoggers, write_run_folder
+from alight.diagrams.world.sim_vehicle import (SimVehicleConfig, load_sim_vehicle_config,
+                                               make_sim_vehicle)
+from alight.diagrams.running.simulation import DisarmedAfter, evaluate, simulate
 from alight.models import model_path
 from alight.systems.boundary import TARGET_ESTIMATE
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,

@@ -22,9 +22,9 @@ from alight.diagrams.fly import mocap_odometry
 from alight.diagrams.landing import (LandingScenario, add_down_camera_perception,
                                      add_mission_logging, landed_and_disarmed, vehicle_config)
 from alight.diagrams.perception import TargetPerceptionPorts
-from alight.diagrams.run_log import RunLog, RunLoggers
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import DisarmedAfter
+from alight.diagrams.running.run_log import RunLog, RunLoggers
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import DisarmedAfter
 from alight.systems.mission.landing import LandingMission
 from alight.systems.mission.landing_requests import LandingRequests
 from alight.systems.params import ConfigError

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import numpy as np
 
-from alight.diagrams.run_log import RunLog
+from alight.diagrams.running.run_log import RunLog
 from alight.systems.control.linear_model import euler_pitch_roll_yaw
 from alight.systems.mission.landing import Mode
 

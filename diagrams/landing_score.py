@@ -12,7 +12,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from alight.diagrams.run_log import RunLog
+from alight.diagrams.running.run_log import RunLog
 from alight.systems.rotations import rotation_matrix, tilt_deg
 
 PLATFORM_HALF_SIZE = 0.75   # m, the 1.5 m x 1.5 m platform

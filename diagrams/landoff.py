@@ -12,11 +12,11 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import AffineSystem, ConstantVectorSource
 
 from alight.diagrams.controllers import ControllersConfig, load_controllers_config, make_controller
-from alight.diagrams.hover import default_run_dir
+from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.mocap import add_mocap
-from alight.diagrams.run_log import RunLog, add_run_logging, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import simulate
+from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import simulate
 from alight.systems.boundary import (CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE,
                                      TRACKER_STATUS, VectorLayout)
 from alight.systems.control.arm_gate import ArmGate

@@ -13,11 +13,12 @@ import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.hover import default_run_dir, pilot_model
+from alight.diagrams.hover import pilot_model
+from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.mocap import add_mocap
-from alight.diagrams.run_log import RunLog, add_run_logging, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import simulate
+from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import simulate
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.control.excitation_pilot import (ExcitationParams, ExcitationPilot,
                                                      ExcitationSegment)

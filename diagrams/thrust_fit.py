@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from alight.diagrams.sim_vehicle import SimVehicleConfig
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig
 from alight.diagrams.track import TrackExperiment, fly_track
 from alight.systems.rotations import tilt_deg
 from alight.systems.thrust_curve import GRAVITY, ThrustCurve

@@ -25,11 +25,11 @@ from pydrake.trajectories import PiecewisePolynomial
 from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
                                          make_controller)
 from alight.diagrams.fly import load_linear_model, load_linear_mpc
-from alight.diagrams.hover import default_run_dir
+from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.mocap import add_mocap
-from alight.diagrams.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import simulate
+from alight.diagrams.running.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import simulate
 from alight.systems.boundary import CONTROLLER_STATUS, GROUND_TRUTH, REFERENCE, STATE_ESTIMATE
 from alight.systems.control import analytic_reference as ref
 from alight.systems.control.arm_gate import ArmGate

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from alight.diagrams.run_log import RunLog
+from alight.diagrams.running.run_log import RunLog
 from alight.systems.rotations import tilt_deg
 
 

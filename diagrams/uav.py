@@ -31,10 +31,10 @@ from alight.diagrams.control_manager import (GOAL_KINDS, ControlManagerConfig, M
                                              load_control_manager_config)
 from alight.diagrams.controllers import ControllersConfig, load_controllers_config
 from alight.diagrams.fly import mocap_odometry
-from alight.diagrams.hover import default_run_dir
-from alight.diagrams.run_log import RunLog, RunLoggers, write_run_folder
-from alight.diagrams.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.simulation import evaluate, finish_recording, start_simulation
+from alight.diagrams.running.paths import default_run_dir
+from alight.diagrams.running.run_log import RunLog, RunLoggers, write_run_folder
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.simulation import evaluate, finish_recording, start_simulation
 from alight.models import model_path
 from alight.systems.mission.uav_manager import (UAV_STATUS, Routine, UavCommand, UavManager,
                                                 UavManagerParams, UavRefusal)

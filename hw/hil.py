@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.run_log import RunLoggers, write_run_folder
+from alight.diagrams.running.run_log import RunLoggers, write_run_folder
 from alight.hw.channel_odometry import channel_odometry
 from alight.hw.endpoint import LOG
 from alight.hw.frame_channel import FrameSubscriber
@@ -140,7 +140,7 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
     clock, so that a simulation that falls behind real time slows the onboard side with it.
     `down_camera` (an OpenCV device, e.g. "/dev/video0") feeds `down_image` from a real camera
     calibrated by models/down_camera.yaml."""
-    from alight.diagrams.hover import default_run_dir
+    from alight.diagrams.running.paths import default_run_dir
     check_mission(mission, frame_address)
     clock = WallClock(realtime_rate)
     cameras = {"down_image": _down_camera(down_camera, clock)} if down_camera else {}

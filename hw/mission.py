@@ -19,8 +19,8 @@ from pathlib import Path
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.hover import default_run_dir
-from alight.diagrams.simulation import start_simulation
+from alight.diagrams.running.paths import default_run_dir
+from alight.diagrams.running.simulation import start_simulation
 from alight.diagrams.uav import Mission, add_managed_onboard
 from alight.hw.channel_odometry import channel_odometry
 from alight.hw.frame_channel import FrameSubscriber

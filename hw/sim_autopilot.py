@@ -408,8 +408,8 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
     world's mocap system (`mocap`, default MocapParams(): the simulation's `mocap_odometry`)
     feeding the frame channel; returns (diagram, run loggers)."""
     from alight.diagrams.mocap import add_mocap
-    from alight.diagrams.run_log import add_run_logging
-    from alight.diagrams.sim_vehicle import make_sim_vehicle
+    from alight.diagrams.running.run_log import add_run_logging
+    from alight.diagrams.world.sim_vehicle import make_sim_vehicle
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
     commander = vehicle_config.flight_controller.commander
@@ -436,9 +436,9 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
     writes the run folder (with ground truth) and, if asked, the link statistics (JSON).
     `realtime_rate` below 1 slows the simulation (and the autopilot's clock) for a loaded machine;
     the companion must run at the same rate (`alight hil --realtime-rate`)."""
-    from alight.diagrams.hover import default_run_dir
-    from alight.diagrams.run_log import write_run_folder
-    from alight.diagrams.visualization import start_recording, write_recording
+    from alight.diagrams.running.paths import default_run_dir
+    from alight.diagrams.running.run_log import write_run_folder
+    from alight.diagrams.world.visualization import start_recording, write_recording
     from alight.hw.realtime import WallClock, run_realtime
     wall_clock = WallClock(realtime_rate)  # checks the rate before anything opens
     clock = SimClock(realtime_rate)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from alight.diagrams.hover import fly_profile, load_pilot_profile
-from alight.diagrams.sim_vehicle import load_sim_vehicle_config
+from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
 from alight.systems.control.scripted_pilot import PilotProfile
 from alight.systems.params import load_params
 from alight.systems.rotations import tilt_deg  # noqa: F401 (tests import it from here)

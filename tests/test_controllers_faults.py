@@ -53,7 +53,7 @@ def failsafe(vehicle_config, tmp_path_factory):
     experiment = TrackExperiment(trajectory="hover", controller="se3", altitude=10.0,
                                  settle=0.0, hover_time=0.0, climb_limits=[3.0, 2.0, 4.0])
     from alight.diagrams.track import make_trajectory, resting_position
-    from alight.diagrams.sim_vehicle import make_sim_vehicle
+    from alight.diagrams.world.sim_vehicle import make_sim_vehicle
     at = make_trajectory(experiment, resting_position(make_sim_vehicle(vehicle_config)))
     experiment.failsafe_at = at.duration + 0.5
     return fly_track(vehicle_config, experiment, seed=5, plots=False, duration=at.duration + 14.0,

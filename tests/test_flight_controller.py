@@ -7,9 +7,9 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from alight.diagrams.hover import fly_profile, pilot_model
-from alight.diagrams.run_log import add_run_logging
-from alight.diagrams.sim_vehicle import make_sim_vehicle
-from alight.diagrams.simulation import simulate
+from alight.diagrams.running.run_log import add_run_logging
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
+from alight.diagrams.running.simulation import simulate
 from alight.systems.autopilot.commander import Commander, CommanderParams
 from alight.systems.autopilot.mixer import allocation_matrix, mix
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH, ActiveMode,

@@ -12,7 +12,7 @@ from alight.diagrams.campaign import campaign_jobs, run_campaign, summarize
 from alight.diagrams.cli import main
 from alight.diagrams.landing import load_scenario, mission_transitions, run_landing
 from alight.diagrams.landing_score import score_landing
-from alight.diagrams.run_log import RunLog
+from alight.diagrams.running.run_log import RunLog
 from alight.models import model_path
 from alight.systems.mission.landing import Mode
 from conftest import assert_landed

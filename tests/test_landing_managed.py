@@ -8,7 +8,7 @@ import pytest
 from alight.diagrams.cli import main
 from alight.diagrams.landing import load_scenario, mission_transitions
 from alight.diagrams.landing_managed import landing_manager_config, tracker_switches
-from alight.diagrams.run_log import RunLog
+from alight.diagrams.running.run_log import RunLog
 from alight.systems.control.control_manager import ManagerMode
 from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode
 from alight.systems.mission.landing_requests import LandingRequests

@@ -10,7 +10,7 @@ from pydrake.systems.analysis import Simulator
 
 from alight.diagrams.controllers import load_controllers_config
 from alight.diagrams.landoff import fly_landoff
-from alight.diagrams.sim_vehicle import make_sim_vehicle
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.track import resting_position
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.control.force_controller import level_command

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from alight.diagrams.run_log import read_run
+from alight.diagrams.running.run_log import read_run
 from alight.hw import px4
 from alight.hw.autopilot_rules import (ACCEPTED, TEMPORARILY_REJECTED, AutopilotRules,
                                        FlightMode, decode_attitude_target)

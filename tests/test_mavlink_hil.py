@@ -18,7 +18,7 @@ import pytest
 from alight.diagrams.cli import main
 from alight.diagrams.landing import load_scenario, mission_transitions
 from alight.diagrams.landing_score import score_landing
-from alight.diagrams.run_log import read_run
+from alight.diagrams.running.run_log import read_run
 from alight.systems.boundary import ActiveMode
 from alight.systems.mission.landing import Mode
 from mavlink_fake import HilProcess, SimAutopilotProcess, free_udp_port

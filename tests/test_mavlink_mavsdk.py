@@ -12,7 +12,7 @@ from mavsdk.plugins.action import Action, ActionError
 from mavsdk.plugins.offboard import Attitude, Offboard
 from mavsdk.plugins.telemetry import FlightMode, Telemetry
 
-from alight.diagrams.run_log import read_run
+from alight.diagrams.running.run_log import read_run
 from alight.systems.rotations import rotation_matrix
 from mavlink_fake import SimAutopilotProcess
 

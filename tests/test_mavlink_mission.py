@@ -3,7 +3,7 @@ over UDP loopback: the unchanged managed stack takes off, goes to a point and la
 simulated autopilot's physics."""
 import numpy as np
 
-from alight.diagrams.run_log import read_run
+from alight.diagrams.running.run_log import read_run
 from alight.hw.frame_channel import default_frame_address
 from alight.hw.mission import mavlink_mission
 from mavlink_fake import SimAutopilotProcess

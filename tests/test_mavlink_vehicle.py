@@ -13,8 +13,8 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem, PortDataType
 from pydrake.systems.primitives import VectorLogSink
 from pymavlink.dialects.v20 import common as mavlink
 
-from alight.diagrams.run_log import ImuLogSink
-from alight.diagrams.sim_vehicle import make_sim_vehicle
+from alight.diagrams.running.run_log import ImuLogSink
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.hw import px4
 from alight.hw.frames import b_to_frd, q_wb_to_nf
 from alight.hw.link import CommandDenied, LinkParams, LinkTimeout, MavlinkLink

@@ -9,7 +9,7 @@ import pytest
 from nbclient import NotebookClient
 
 from alight.diagrams.cli import COMMANDS, main
-from alight.diagrams.run_log import read_run
+from alight.diagrams.running.run_log import read_run
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 

@@ -2,7 +2,7 @@
 import pytest
 
 from alight.diagrams.cli import main
-from alight.diagrams.sim_vehicle import SimVehicleConfig, load_sim_vehicle_config
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, load_sim_vehicle_config
 from alight.systems.params import ConfigError, load_params
 from alight.systems.plant.hexacopter import load_hexacopter_params
 

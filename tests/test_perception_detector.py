@@ -14,7 +14,7 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from alight.diagrams.perception import load_target_estimator_params
-from alight.diagrams.target import DownCameraRig
+from alight.diagrams.world.target import DownCameraRig
 from alight.models.textures import GROUND_TILE
 from alight.systems.perception.detector import PatternDetector, Rectifier
 from alight.systems.perception.pattern import CORNER_IDS

@@ -14,7 +14,7 @@ from scipy.stats import chi2
 from alight.diagrams.hover import pilot_model
 from alight.diagrams.mocap import add_mocap
 from alight.diagrams.perception import add_target_perception, load_target_estimator_params
-from alight.diagrams.sim_vehicle import make_sim_vehicle
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.systems.boundary import GROUND_TRUTH, TARGET_ESTIMATE
 from alight.systems.control.scripted_pilot import ScriptedPilot
 from alight.systems.perception.pattern import Pattern, load_pattern_params

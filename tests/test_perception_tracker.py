@@ -9,8 +9,8 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from alight.diagrams.perception import load_target_estimator_params
-from alight.diagrams.sim_vehicle import make_sim_vehicle
-from alight.diagrams.target import DownCameraRig
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
+from alight.diagrams.world.target import DownCameraRig
 from alight.systems.boundary import FC_COMMAND
 from alight.systems.perception.detector import Rectifier
 from alight.systems.perception.keypoint_tracker import KeypointTracker

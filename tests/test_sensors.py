@@ -43,7 +43,7 @@ def test_every_imu_sample_is_logged_exactly_once_with_its_own_stamp(hover_run, v
 
 def test_imu_port_buffer_lets_a_slow_consumer_take_each_sample_once(vehicle_config):
     from pydrake.systems.analysis import Simulator
-    from alight.diagrams.sim_vehicle import make_sim_vehicle
+    from alight.diagrams.world.sim_vehicle import make_sim_vehicle
     from alight.systems.boundary import FC_COMMAND
     vehicle = make_sim_vehicle(vehicle_config)
     context = vehicle.CreateDefaultContext()

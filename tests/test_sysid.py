@@ -7,7 +7,7 @@ import pytest
 
 from alight.diagrams.cli import main
 from alight.diagrams.fly import load_linear_mpc
-from alight.diagrams.run_log import RunLog
+from alight.diagrams.running.run_log import RunLog
 from alight.diagrams.sysid import effective_damping, identify_from_ulog, run_sysid
 from alight.hw.frames import q_wb_to_nf
 from alight.systems.control.identification import IdentificationError

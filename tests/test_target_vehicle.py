@@ -11,7 +11,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import RandomSource, VectorLogSink
 
-from alight.diagrams.sim_vehicle import make_sim_vehicle
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.models import MODELS_DIR
 from alight.models.textures import generated_files
 from alight.systems.boundary import FC_COMMAND, GROUND_TRUTH

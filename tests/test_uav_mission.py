@@ -6,7 +6,7 @@ import pytest
 from pydrake.systems.primitives import ConstantVectorSource
 
 from alight.diagrams.cli import main
-from alight.diagrams.run_log import RunLog
+from alight.diagrams.running.run_log import RunLog
 from alight.diagrams.uav import Mission, MissionError
 from alight.systems.control.control_manager import FailsafeCause, ManagerMode
 from alight.systems.estimation.frames import FrameSwitch

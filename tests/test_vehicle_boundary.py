@@ -2,7 +2,7 @@
 import numpy as np
 from pydrake.systems.framework import PortDataType
 
-from alight.diagrams.sim_vehicle import make_sim_vehicle
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.systems import boundary
 
 

@@ -6,7 +6,7 @@ from pydrake.geometry import Meshcat, StartMeshcat
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import EventStatus
 
-from alight.diagrams.visualization import start_recording, write_recording
+from alight.diagrams.world.visualization import start_recording, write_recording
 from alight.systems.boundary import FC_STATUS
 
 

@@ -9,7 +9,7 @@ from pydrake.geometry import GeometryInstance, Mesh
 from pydrake.math import RigidTransform
 from pydrake.systems.primitives import ConstantValueSource, RandomSource
 
-from alight.diagrams.target import add_render_sensor
+from alight.diagrams.world.target import add_render_sensor
 from alight.models import model_path
 from alight.systems.boundary import CameraFrame
 from alight.systems.sensors.rgbd_camera import (GeometricRgbdCamera, RenderedRgbdCamera,

@@ -4,19 +4,18 @@ import dataclasses as dc
 
 import numpy as np
 from pydrake.common import RandomDistribution
-from pydrake.geometry import (AddContactMaterial, Box, GeometryInstance, HalfSpace,
-                              IllustrationProperties, Meshcat, ProximityProperties, Rgba, Sphere)
+from pydrake.geometry import Box, Meshcat, Sphere
 from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction,
-                                     ExternallyAppliedSpatialForceMultiplexer,
+from pydrake.multibody.plant import (AddMultibodyPlant, ExternallyAppliedSpatialForceMultiplexer,
                                      MultibodyPlantConfig, Propeller)
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
-from alight.diagrams.flight_controller import make_flight_controller
-from alight.diagrams.rgbd_camera import add_rgbd_camera, add_rgbd_scene
-from alight.diagrams.target import add_target_scene, add_target_systems, perceived_ground
+from alight.diagrams.world.flight_controller import make_flight_controller
+from alight.diagrams.world.rgbd_camera import add_rgbd_camera, add_rgbd_scene
+from alight.diagrams.world.target import add_target_scene, add_target_systems, perceived_ground
+from alight.diagrams.world.ground import add_ground
 from alight.models import model_path
 from alight.systems.autopilot.config import FlightControllerParams
 from alight.systems.params import bounded, load_params
@@ -55,24 +54,6 @@ def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleCon
     return load_params(SimVehicleConfig, model_path(filename))
 
 
-def _add_ground(plant, friction: float, perceived: bool = True):
-    """The ground half-space; `perceived=False` hides it from cameras (a textured ground is seen)."""
-    properties = ProximityProperties()
-    AddContactMaterial(friction=CoulombFriction(friction, friction), properties=properties)
-    plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
-                                    properties)
-    colour = np.array([0.45, 0.55, 0.4, 1.0])
-    if perceived:
-        plant.RegisterVisualGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
-                                     colour)
-        return
-    instance = GeometryInstance(RigidTransform(), HalfSpace(), "ground")
-    illustration = IllustrationProperties()
-    illustration.AddProperty("phong", "diffuse", Rgba(*colour))
-    instance.set_illustration_properties(illustration)
-    plant.RegisterVisualGeometry(plant.world_body(), instance)
-
-
 def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -> Diagram:
     """The simulated vehicle diagram. Input `fc_command`; outputs `imu`, `fc_attitude`,
     `fc_status`, `rgbd` (the forward RGB-D camera of `config.rgbd_camera`, empty frames with source
@@ -84,8 +65,8 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     plant, scene_graph = AddMultibodyPlant(
         MultibodyPlantConfig(time_step=config.time_step, discrete_contact_approximation="sap"),
         builder)
-    _add_ground(plant, config.ground_friction, perceived_ground(config.down_camera)
-                and config.rgbd_camera.source != "rendered")
+    add_ground(plant, config.ground_friction, perceived_ground(config.down_camera)
+               and config.rgbd_camera.source != "rendered")
     instance = add_hexacopter(plant, params)
     scene = add_target_scene(plant, config.target, config.down_camera)
     add_rgbd_scene(plant, config.rgbd_camera, not perceived_ground(config.down_camera))
@@ -171,7 +152,7 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     builder.Connect(motors.get_output_port(), truth.GetInputPort("rotor_thrust"))
 
     if meshcat is not None:
-        from alight.diagrams.visualization import add_meshcat_visualizer
+        from alight.diagrams.world.visualization import add_meshcat_visualizer
         add_meshcat_visualizer(builder, scene_graph, meshcat)
 
     builder.ExportInput(fc.GetInputPort("fc_command"), "fc_command")

@@ -18,6 +18,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, RandomSource
 from pydrake.systems.sensors import CameraInfo, RgbdSensor
 
+from alight.diagrams.world.ground import add_ground
 from alight.models import model_path
 from alight.systems.boundary import CameraFrame
 from alight.systems.perception.pattern import Pattern, load_pattern_params
@@ -142,8 +143,7 @@ class DownCameraRig:
         target = dc.replace(target, profile="straight" if target.profile == "none"
                             else target.profile)
         self.scene = add_target_scene(plant, target, camera)
-        from alight.diagrams.sim_vehicle import _add_ground
-        _add_ground(plant, 0.8, perceived=False)
+        add_ground(plant, 0.8, perceived=False)
         plant.Finalize()
         self._sensor = add_render_sensor(builder, plant, scene_graph, camera, self._body)
         self.camera = RenderedDownCamera(camera)

@@ -1,0 +1,1 @@
+"""Running: simulating, run folders, the runners of every command."""

@@ -1,0 +1,1 @@
+"""The simulated vehicle and its world: plant, flight controller, target, cameras, ground."""
