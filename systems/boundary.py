@@ -214,9 +214,10 @@ REFERENCE = VectorLayout("reference", [
 
 # `controller_status`, next to every controller's `fc_command` output: valid (0/1: the command is
 # usable; 0 means the control manager must fall back), reason (controller-specific code, 0 = ok),
-# compute time of the last tick [s], solver status (solver-specific code, 0 = solved or n/a).
+# solver status (solver-specific code, 0 = solved or n/a). Compute times are not state: they go to
+# the system's `compute_timer` (alight.systems.timing) and the run folder's `timing` stream.
 CONTROLLER_STATUS = VectorLayout("controller_status", [
-    ("valid", 1), ("reason", 1), ("compute_time", 1), ("solver_status", 1)])
+    ("valid", 1), ("reason", 1), ("solver_status", 1)])
 
 # The controller contract (DESIGN.md "The onboard stack"): every controller is a LeafSystem with
 # inputs `state_estimate` (STATE_ESTIMATE), `reference` (REFERENCE), `active` (1: only the active one

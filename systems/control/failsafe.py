@@ -15,7 +15,6 @@ been seen descending (faster than `descent_speed`) and its vertical speed (low-p
 It then commands zero thrust and arm = 0.
 """
 import dataclasses as dc
-import time
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -27,6 +26,7 @@ from alight.systems.control.force_controller import (ControllerReason, VehicleMo
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, rotation_matrix
 from alight.systems.thrust_curve import GRAVITY
+from alight.systems.timing import ComputeTimer
 
 
 @dc.dataclass
@@ -52,10 +52,12 @@ class FailsafeController(LeafSystem):
             `last_command` FC_COMMAND
     Outputs `fc_command` FC_COMMAND (attitude+thrust, level); `controller_status`;
             `desired_acceleration` (3) the vertical acceleration the thrust gives at m_e [m/s^2]
+    `compute_timer` records the wall-clock time of every active tick (alight.systems.timing).
     """
 
     def __init__(self, vehicle: VehicleModel, params: FailsafeParams, period: float = 0.01):
         super().__init__()
+        self.compute_timer = ComputeTimer()
         self._vehicle, self._p, self._period = vehicle, params, period
         self._curve = vehicle.curve
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
@@ -81,15 +83,18 @@ class FailsafeController(LeafSystem):
         return float(np.clip(apparent * tilt_cos, lo, hi))
 
     def _update(self, context, discrete_state):
-        start_clock = time.perf_counter()
-        now = context.get_time()
         x = context.get_discrete_state(self._state).get_value().copy()
-        S = _STATE
         if self._active.Eval(context)[0] < 0.5:
-            x[S.slice("was_active")] = 0.0
+            x[_STATE.slice("was_active")] = 0.0
             discrete_state.set_value(self._state, x)
             discrete_state.set_value(self._status, status_vector(ControllerReason.INACTIVE))
             return
+        with self.compute_timer.measure(context.get_time()):
+            self._active_tick(context, discrete_state, x)
+
+    def _active_tick(self, context, discrete_state, x: np.ndarray) -> None:
+        now = context.get_time()
+        S = _STATE
         if x[S.slice("was_active")][0] < 0.5:
             last = self._last.Eval(context)
             mass = self.last_mass(last)
@@ -116,8 +121,7 @@ class FailsafeController(LeafSystem):
         discrete_state.set_value(self._acceleration, [0.0, 0.0, force / mass - GRAVITY])
         discrete_state.set_value(self._state, x)
         discrete_state.set_value(self._status, status_vector(
-            ControllerReason.TOUCHDOWN if touched_down else ControllerReason.OK,
-            time.perf_counter() - start_clock))
+            ControllerReason.TOUCHDOWN if touched_down else ControllerReason.OK))
 
     def _detect_touchdown(self, x: np.ndarray, estimate: np.ndarray, now: float) -> None:
         S = _STATE

@@ -42,7 +42,6 @@ non-finite result) outputs a finite, level attitude+thrust hover command and rep
 """
 import dataclasses as dc
 import enum
-import time
 
 import numpy as np
 from pydrake.math import RotationMatrix
@@ -61,6 +60,7 @@ from alight.systems.params import bounded
 from alight.systems.rotations import (heading, heading_quaternion, quaternion_from_rotation_vector,
                                       quaternion_product, rotation_matrix)
 from alight.systems.thrust_curve import GRAVITY, ThrustCurve
+from alight.systems.timing import ComputeTimer
 
 
 class ControllerReason(enum.IntEnum):
@@ -91,10 +91,9 @@ class VehicleModel:
         return ThrustCurve(self.a_t, self.b_t)
 
 
-def status_vector(reason: ControllerReason, compute_time: float = 0.0,
-                  solver_status: float = 0.0) -> np.ndarray:
+def status_vector(reason: ControllerReason, solver_status: float = 0.0) -> np.ndarray:
     return CONTROLLER_STATUS.pack(valid=float(reason in VALID_REASONS), reason=float(reason),
-                                  compute_time=compute_time, solver_status=solver_status)
+                                  solver_status=solver_status)
 
 
 def level_command(stamp: float, eta: float, thrust: float, arm: float) -> np.ndarray:
@@ -139,13 +138,15 @@ class ForceController(LeafSystem):
     Outputs `fc_command` FC_COMMAND (body rates + thrust); `controller_status` CONTROLLER_STATUS;
             `desired_acceleration` (3) the unbiased desired acceleration M(53) [m/s^2, in E];
             `disturbance_estimate` DISTURBANCE_ESTIMATE (d_w, d_b [N, in E], m_e [kg])
-    All outputs are state, updated every `period` (100 Hz by default).
+    All outputs are state, updated every `period` (100 Hz by default); `compute_timer` records
+    the wall-clock time of every active tick (alight.systems.timing).
     """
 
     def __init__(self, vehicle: VehicleModel, so3: So3Params, gains: DisturbanceGains,
                  limits: DisturbanceLimits, period: float, extra_state=None,
                  max_prediction: float = 0.1):
         super().__init__()
+        self.compute_timer = ComputeTimer()
         self._max_prediction = max_prediction
         self._vehicle, self._so3, self._gains, self._limits = vehicle, so3, gains, limits
         self._curve = vehicle.curve
@@ -190,13 +191,16 @@ class ForceController(LeafSystem):
     # --- the tick -----------------------------------------------------------------------------
 
     def _update(self, context, discrete_state):
-        start = time.perf_counter()
         x = context.get_discrete_state(self._internal).get_value().copy()
         if self._active.Eval(context)[0] < 0.5:
             x[_INTERNAL.slice("was_active")] = 0.0
             discrete_state.set_value(self._internal, x)
             discrete_state.set_value(self._status, status_vector(ControllerReason.INACTIVE))
             return
+        with self.compute_timer.measure(context.get_time()):
+            self._active_tick(context, discrete_state, x)
+
+    def _active_tick(self, context, discrete_state, x) -> None:
         estimate = self._estimate.Eval(context)
         reference = self._reference.Eval(context)
         estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 \
@@ -204,9 +208,9 @@ class ForceController(LeafSystem):
         if x[_INTERNAL.slice("was_active")][0] < 0.5:
             self._activate(context, discrete_state, x, estimate if estimate_ok else None)
         if not estimate_ok:
-            return self._hold(context, discrete_state, x, ControllerReason.BAD_ESTIMATE, start)
+            return self._hold(context, discrete_state, x, ControllerReason.BAD_ESTIMATE)
         if not np.all(np.isfinite(reference)):
-            return self._hold(context, discrete_state, x, ControllerReason.BAD_REFERENCE, start)
+            return self._hold(context, discrete_state, x, ControllerReason.BAD_REFERENCE)
         counter = STATE_ESTIMATE.get(estimate, "frame_counter")
         if counter != x[_INTERNAL.slice("frame_counter")][0]:
             R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
@@ -214,7 +218,7 @@ class ForceController(LeafSystem):
                 x[_INTERNAL.slice("disturbance")], R_OldNew)
             x[_INTERNAL.slice("frame_counter")] = counter
             self._on_frame_change(context, discrete_state, R_OldNew)
-        self._compute(context, discrete_state, x, estimate, reference, start)
+        self._compute(context, discrete_state, x, estimate, reference)
 
     def _activate(self, context, discrete_state, x, estimate) -> None:
         last = self._last.Eval(context)
@@ -241,7 +245,7 @@ class ForceController(LeafSystem):
             x[_INTERNAL.slice("frame_counter")] = STATE_ESTIMATE.get(estimate, "frame_counter")
         self._on_activation(context, discrete_state)
 
-    def _compute(self, context, discrete_state, x, estimate, reference, start) -> None:
+    def _compute(self, context, discrete_state, x, estimate, reference) -> None:
         now = context.get_time()
         reference = advance_reference(reference, float(np.clip(
             now - REFERENCE.get(reference, "stamp"), 0.0, self._max_prediction)))
@@ -260,7 +264,7 @@ class ForceController(LeafSystem):
             context, discrete_state, e_p, e_v, reference)
         if reason not in VALID_REASONS:
             x[_INTERNAL.slice("disturbance")] = state
-            return self._hold(context, discrete_state, x, reason, start, solver_status)
+            return self._hold(context, discrete_state, x, reason, solver_status)
         f_d = m_e * (a_fb + REFERENCE.get(reference, "a") + GRAVITY * E3) - (d_w + d_b)  # M(38/39)
         f_d = limit_tilt(f_d, np.radians(self._so3.max_tilt), 0.2 * m_e * GRAVITY)
         R_d = desired_orientation(f_d, REFERENCE.get(reference, "heading"),
@@ -284,14 +288,13 @@ class ForceController(LeafSystem):
                                   thrust=thrust, arm=1.0)
         x[_INTERNAL.slice("disturbance")] = state
         if not (np.all(np.isfinite(command)) and np.all(np.isfinite(a_d))):
-            return self._hold(context, discrete_state, x, ControllerReason.NOT_FINITE, start)
+            return self._hold(context, discrete_state, x, ControllerReason.NOT_FINITE)
         discrete_state.set_value(self._command, command)
         discrete_state.set_value(self._acceleration, a_d)
         discrete_state.set_value(self._estimates, disturbance.estimate_vector(
             self._vehicle.mass, state, eta))
         discrete_state.set_value(self._internal, x)
-        discrete_state.set_value(self._status, status_vector(
-            reason, time.perf_counter() - start, solver_status))
+        discrete_state.set_value(self._status, status_vector(reason, solver_status))
 
     def _predict(self, context, estimate, now) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity and orientation R_EB of the estimate predicted from its stamp to
@@ -324,7 +327,7 @@ class ForceController(LeafSystem):
             FC_ATTITUDE.get(attitude, "w_B") * dt))
         return with_heading(rotation_matrix(q), heading(R_estimate))
 
-    def _hold(self, context, discrete_state, x, reason, start, solver_status=0.0) -> None:
+    def _hold(self, context, discrete_state, x, reason, solver_status=0.0) -> None:
         """A tick that cannot compute: level hover command (finite), valid = 0."""
         previous = context.get_discrete_state(self._command).get_value()
         eta = heading(rotation_matrix(FC_COMMAND.get(previous, "q_WD"))) \
@@ -337,8 +340,7 @@ class ForceController(LeafSystem):
                                                               arm))
         discrete_state.set_value(self._acceleration, np.zeros(3))
         discrete_state.set_value(self._internal, x)
-        discrete_state.set_value(self._status, status_vector(
-            reason, time.perf_counter() - start, solver_status))
+        discrete_state.set_value(self._status, status_vector(reason, solver_status))
 
     @property
     def period(self) -> float:

@@ -21,7 +21,6 @@ follow its commands) a vertical estimate would wind up. Gain 0 is the paper's co
 """
 import dataclasses as dc
 import enum
-import time
 
 import numpy as np
 from pydrake.math import RollPitchYaw
@@ -38,6 +37,7 @@ from alight.systems.params import bounded, choice
 from alight.systems.rotations import heading_quaternion, quaternion_product, rotation_matrix
 from alight.systems.rotations import heading as heading_of_matrix
 from alight.systems.thrust_curve import ThrustCurve
+from alight.systems.timing import ComputeTimer
 
 
 def heading_of(q: np.ndarray) -> float:
@@ -216,10 +216,12 @@ class LinearMpc(LeafSystem):
     Outputs `fc_command` FC_COMMAND (attitude+thrust), `controller_status` CONTROLLER_STATUS,
             `prediction` (N x 3 inputs of the last solution, flattened),
             `disturbance` (3) the estimated acceleration disturbance d_W [m/s^2] (zero when off)
+    `compute_timer` records the wall-clock time of every active tick (alight.systems.timing).
     """
 
     def __init__(self, model: LinearModelParams, params: LinearMpcParams):
         super().__init__()
+        self.compute_timer = ComputeTimer()
         self._model, self._p = model, params
         self._qp = LinearMpcQp(model, params)
         self._curve = ThrustCurve(model.thrust_a, model.thrust_b)
@@ -231,7 +233,7 @@ class LinearMpc(LeafSystem):
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._command = self.DeclareDiscreteState(self._hover_command(0.0, 0.0))
         self._status = self.DeclareDiscreteState(CONTROLLER_STATUS.pack(
-            valid=0.0, reason=MpcReason.INACTIVE, compute_time=0.0, solver_status=0.0))
+            valid=0.0, reason=MpcReason.INACTIVE, solver_status=0.0))
         self._solution = self.DeclareDiscreteState(np.full(N * NUM_INPUTS, np.nan))
         self._failures = self.DeclareDiscreteState(1)
         # [d_W (3), velocity predicted for this tick in W (3), NaN: none]
@@ -281,15 +283,18 @@ class LinearMpc(LeafSystem):
         if self._active.Eval(context)[0] < 0.5:
             discrete_state.set_value(self._command, self._last.Eval(context))
             discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
-                valid=0.0, reason=MpcReason.INACTIVE, compute_time=0.0, solver_status=0.0))
+                valid=0.0, reason=MpcReason.INACTIVE, solver_status=0.0))
             discrete_state.set_value(self._failures, [0.0])
             self._forget_prediction(context, discrete_state)
             return
-        start = time.perf_counter()
+        with self.compute_timer.measure(now):
+            self._active_tick(context, discrete_state, now, estimate, reference)
+
+    def _active_tick(self, context, discrete_state, now, estimate, reference) -> None:
         heading = float(REFERENCE.get(reference, "heading"))
         if STATE_ESTIMATE.get(estimate, "valid") < 0.5 or not np.all(np.isfinite(estimate)) \
                 or not np.all(np.isfinite(reference)):
-            self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0, start)
+            self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0)
             return
         # Position and velocity from odometry; attitude and rates from the flight controller's
         # estimate (fresh, 250 Hz), rotated into the odometry frame by the heading difference.
@@ -308,8 +313,7 @@ class LinearMpc(LeafSystem):
         result = self._qp.solve()
         solver_status = result.status
         if not result.ok:
-            self._fail(context, discrete_state, now, heading, MpcReason.FALLBACK, solver_status,
-                       start)
+            self._fail(context, discrete_state, now, heading, MpcReason.FALLBACK, solver_status)
             return
         u = self._qp.inputs(result)
         v_next_N = (self._qp.Ad @ x0 + self._qp.Bd @ u[0] + self._qp.Ed @ d_N)[3:6]
@@ -319,8 +323,7 @@ class LinearMpc(LeafSystem):
         discrete_state.set_value(self._solution, u.ravel())
         discrete_state.set_value(self._failures, [0.0])
         discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
-            valid=1.0, reason=MpcReason.OK, compute_time=time.perf_counter() - start,
-            solver_status=solver_status))
+            valid=1.0, reason=MpcReason.OK, solver_status=solver_status))
 
     def _estimate_disturbance(self, context, v_W: np.ndarray) -> np.ndarray:
         """d_W moved by `disturbance_gain` of the velocity the model failed to predict over the
@@ -340,7 +343,7 @@ class LinearMpc(LeafSystem):
         d_W = context.get_discrete_state(self._disturbance).get_value()[:3]
         discrete_state.set_value(self._disturbance, np.concatenate([d_W, np.full(3, np.nan)]))
 
-    def _fail(self, context, discrete_state, now, heading, reason, solver_status, start):
+    def _fail(self, context, discrete_state, now, heading, reason, solver_status):
         """Previous solution's next input once; then an invalid (but finite) level hover command."""
         failures = context.get_discrete_state(self._failures).get_value()[0]
         self._forget_prediction(context, discrete_state)
@@ -353,5 +356,4 @@ class LinearMpc(LeafSystem):
         discrete_state.set_value(self._command, command)
         discrete_state.set_value(self._failures, [failures + 1])
         discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
-            valid=valid, reason=reason, compute_time=time.perf_counter() - start,
-            solver_status=solver_status))
+            valid=valid, reason=reason, solver_status=solver_status))

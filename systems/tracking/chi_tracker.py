@@ -10,7 +10,6 @@ non-finite chi keeps the previous one (reason NOT_FINITE): no NaN leaves the tra
 """
 import dataclasses as dc
 import enum
-import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -21,6 +20,7 @@ from alight.systems.control.force_controller import advance_reference
 from alight.systems.estimation.frames import reexpress_point
 from alight.systems.estimation.heading import wrap_angle
 from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.timing import ComputeTimer
 
 
 class ChiReason(enum.IntEnum):
@@ -78,11 +78,13 @@ class ChiTracker(LeafSystem):
     Outputs `reference` REFERENCE (chi of M(16) in E, stamped one period ahead);
             `tracker_status` TRACKER_STATUS (reason: ChiReason)
     Subclasses implement `_begin` (a new goal), `_step` (one period of the virtual vehicle) and,
-    when they store points, `_reexpress`; they may declare more ports.
+    when they store points, `_reexpress`; they may declare more ports. `compute_timer` records
+    the wall-clock time of each active tick's goal and step (alight.systems.timing).
     """
 
     def __init__(self, period: float, memory: ChiMemory, goal_type: type):
         super().__init__()
+        self.compute_timer = ComputeTimer()
         self.period, self._goal_type = period, goal_type
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._goal = self.DeclareAbstractInputPort("goal", AbstractValue.Make(None))
@@ -91,7 +93,7 @@ class ChiTracker(LeafSystem):
         self._memory = self.DeclareAbstractState(AbstractValue.Make(memory))
         self._reference = self.DeclareDiscreteState(np.full(REFERENCE.size, np.nan))
         self._status = self.DeclareDiscreteState(TRACKER_STATUS.pack(
-            valid=0.0, reason=ChiReason.INACTIVE, compute_time=0.0, solver_status=0.0))
+            valid=0.0, reason=ChiReason.INACTIVE, solver_status=0.0))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
         # Not from `last_reference`: the control manager computes that from this output.
         self.DeclareVectorOutputPort(
@@ -152,30 +154,30 @@ class ChiTracker(LeafSystem):
         if goal is not None and not isinstance(goal, self._goal_type):
             raise TypeError(f"{type(self).__name__}: the goal must be a "
                             f"{self._goal_type.__name__} or None, got {type(goal).__name__}")
-        start = time.perf_counter()
         estimate = estimate if valid else None
-        refused = ChiReason.OK
-        if not memory.active or goal != memory.goal:
-            refused = self._begin(context, memory, goal, estimate)
-            if refused == ChiReason.OK:
-                memory.goal = goal
-            elif not memory.active:          # a refused first goal: hold where it starts
-                memory.goal = None
-                self._begin(context, memory, None, estimate)
-        memory.active = True
-        previous = memory.chi.copy()
-        reason = self._step(context, memory, estimate)
-        if not np.all(np.isfinite(memory.chi)):
-            memory.chi, reason = previous, ChiReason.NOT_FINITE
-            for field in ("v", "a", "j", "heading_rate"):
-                memory.chi[REFERENCE.slice(field)] = 0.0
-        memory.chi[REFERENCE.slice("stamp")] = now + self.period
-        state.get_mutable_discrete_state(int(self._reference)).SetFromVector(memory.chi)
-        if refused != ChiReason.OK:
-            reason = refused
-        elif memory.goal is None and reason == ChiReason.OK:
-            reason = ChiReason.NO_GOAL
-        self._set_status(state, 1.0, reason, time.perf_counter() - start)
+        with self.compute_timer.measure(now):
+            refused = ChiReason.OK
+            if not memory.active or goal != memory.goal:
+                refused = self._begin(context, memory, goal, estimate)
+                if refused == ChiReason.OK:
+                    memory.goal = goal
+                elif not memory.active:          # a refused first goal: hold where it starts
+                    memory.goal = None
+                    self._begin(context, memory, None, estimate)
+            memory.active = True
+            previous = memory.chi.copy()
+            reason = self._step(context, memory, estimate)
+            if not np.all(np.isfinite(memory.chi)):
+                memory.chi, reason = previous, ChiReason.NOT_FINITE
+                for field in ("v", "a", "j", "heading_rate"):
+                    memory.chi[REFERENCE.slice(field)] = 0.0
+            memory.chi[REFERENCE.slice("stamp")] = now + self.period
+            state.get_mutable_discrete_state(int(self._reference)).SetFromVector(memory.chi)
+            if refused != ChiReason.OK:
+                reason = refused
+            elif memory.goal is None and reason == ChiReason.OK:
+                reason = ChiReason.NO_GOAL
+        self._set_status(state, 1.0, reason)
 
     def _start(self, context, memory: ChiMemory, estimate, now: float) -> bool:
         last = self._last.Eval(context)
@@ -200,7 +202,6 @@ class ChiTracker(LeafSystem):
             self._reexpress(memory, R_OldNew, p_OldNew)
         memory.frame_counter = counter
 
-    def _set_status(self, state, valid: float, reason: ChiReason,
-                    compute_time: float = 0.0) -> None:
+    def _set_status(self, state, valid: float, reason: ChiReason) -> None:
         state.get_mutable_discrete_state(int(self._status)).SetFromVector(TRACKER_STATUS.pack(
-            valid=valid, reason=reason, compute_time=compute_time, solver_status=0.0))
+            valid=valid, reason=reason, solver_status=0.0))

@@ -17,7 +17,6 @@ hides the goal: 0.08 m past it instead of 0.001 m after medium -> slow).
 """
 import dataclasses as dc
 import enum
-import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -27,6 +26,7 @@ from alight.models import model_path
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.params import ConfigError, bounded, load_params
 from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.timing import ComputeTimer
 from alight.systems.tracking.axis_mpc import (ORDER, AxisLimits, AxisMpc, AxisMpcParams, chain,
                                               horizontal_factors)
 from alight.systems.tracking.constraints import ConstraintGroups, load_constraint_groups
@@ -82,13 +82,15 @@ class MpcTracker(LeafSystem):
             `active` (1); `last_reference` REFERENCE; `constraint_group` (1, optional: index
             into `group_names`; unconnected: the default group)
     Outputs `reference` REFERENCE (chi of M(16) in E, stamped one period ahead),
-            `tracker_status` TRACKER_STATUS (compute_time: this tick's QP time [s])
+            `tracker_status` TRACKER_STATUS
     On activation the virtual vehicle starts from `last_reference` when it is finite (M Sec. 7.2),
-    else at rest at the state estimate.
+    else at rest at the state estimate. `compute_timer` records each active tick's QP time
+    (alight.systems.timing).
     """
 
     def __init__(self, params: MpcTrackerParams, groups: ConstraintGroups):
         super().__init__()
+        self.compute_timer = ComputeTimer()
         ratio = params.axis.step / params.period
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < AXES:
             raise ConfigError(f"mpc tracker: axis.step {params.axis.step} s must be a whole "
@@ -110,7 +112,7 @@ class MpcTracker(LeafSystem):
         self._memory = self.DeclareAbstractState(AbstractValue.Make(TrackerMemory.empty(self.N)))
         self._reference = self.DeclareDiscreteState(np.full(REFERENCE.size, np.nan))
         self._status = self.DeclareDiscreteState(TRACKER_STATUS.pack(
-            valid=0.0, reason=TrackerReason.INACTIVE, compute_time=0.0, solver_status=0.0))
+            valid=0.0, reason=TrackerReason.INACTIVE, solver_status=0.0))
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
         self.DeclareVectorOutputPort(
             "reference", REFERENCE.size, self._calc_reference,
@@ -158,13 +160,13 @@ class MpcTracker(LeafSystem):
             memory.active = False
             state.get_mutable_discrete_state(int(self._reference)).SetFromVector(
                 self._last.Eval(context))
-            return self._set_status(state, 0.0, TrackerReason.INACTIVE, 0.0, 0)
+            return self._set_status(state, 0.0, TrackerReason.INACTIVE, 0)
         estimate = self._estimate.Eval(context)
         counter = STATE_ESTIMATE.get(estimate, "frame_counter")
         started = False
         if not memory.active:
             if not self._start(context, memory):
-                return self._set_status(state, 0.0, TrackerReason.BAD_START, 0.0, 0)
+                return self._set_status(state, 0.0, TrackerReason.BAD_START, 0)
             started = True
         elif np.isfinite(memory.frame_counter) and np.isfinite(counter) \
                 and counter != memory.frame_counter:
@@ -177,22 +179,22 @@ class MpcTracker(LeafSystem):
         switched, memory.group = group != memory.group, group   # a new group: all re-plan now
         due = range(AXES) if started or switched else [a for a in range(AXES)
                                                        if memory.ticks % self.every == a]
-        start, solver_status = time.perf_counter(), 0
-        if due:
-            ok, solver_status = self._replan(memory, list(due), goal, context)
-            reason = reason if ok else TrackerReason.SOLVER_FAILED
-        compute_time = time.perf_counter() - start
-        self._advance(memory)
         now = context.get_time()
+        solver_status = 0
+        with self.compute_timer.measure(now):
+            if due:
+                ok, solver_status = self._replan(memory, list(due), goal, context)
+                reason = reason if ok else TrackerReason.SOLVER_FAILED
+        self._advance(memory)
         x = memory.x
         state.get_mutable_discrete_state(int(self._reference)).SetFromVector(REFERENCE.pack(
             stamp=now + self.params.period, p=x[:3, 0], v=x[:3, 1], a=x[:3, 2], j=x[:3, 3],
             heading=float(np.angle(np.exp(1j * x[3, 0]))), heading_rate=x[3, 1]))
-        self._set_status(state, 1.0, reason, compute_time, solver_status)
+        self._set_status(state, 1.0, reason, solver_status)
 
-    def _set_status(self, state, valid, reason, compute_time, solver_status):
+    def _set_status(self, state, valid, reason, solver_status):
         state.get_mutable_discrete_state(int(self._status)).SetFromVector(TRACKER_STATUS.pack(
-            valid=valid, reason=reason, compute_time=compute_time, solver_status=solver_status))
+            valid=valid, reason=reason, solver_status=solver_status))
 
     def _goal_rows(self, memory: TrackerMemory, goal, now: float) -> np.ndarray:
         """(4 axes, 2, N): goal positions and velocities at the horizon's times."""

@@ -30,7 +30,6 @@ the velocity term keeps long segments near their straight line. M Sec. 6's exten
 """
 import dataclasses as dc
 import math
-import time
 
 import numpy as np
 import scipy.sparse as sp
@@ -40,6 +39,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from alight.models import model_path
 from alight.systems.params import ConfigError, bounded, choice, load_params
+from alight.systems.timing import ComputeTimer
 from alight.systems.tracking.constraints import (ConstraintGroup, ConstraintGroups,
                                                  derivative_peaks, limits_table,
                                                  load_constraint_groups)
@@ -84,7 +84,6 @@ class WaypointTrajectory:
     max_deviation: float          # largest sampled distance from the straight waypoint path [m]
     peak_ratios: np.ndarray       # (4 quantities, max_derivative) sampled peak / limit
     uniform_fallback: bool        # per-segment stretching gave up: uniform rescaling used
-    compute_time: float           # wall clock [s]
     sample_period: float = 0.01
 
     @property
@@ -251,9 +250,11 @@ class SegmentQp:
 
 
 class TrajectoryGenerator:
-    """Waypoints -> `WaypointTrajectory` under one constraint group (module docstring)."""
+    """Waypoints -> `WaypointTrajectory` under one constraint group (module docstring).
+    `compute_timer` records the wall-clock time of every `generate` (alight.systems.timing)."""
 
     def __init__(self, params: TrajectoryGenerationParams, groups: ConstraintGroups):
+        self.compute_timer = ComputeTimer()
         self.r = ORDERS[params.minimize]
         if params.continuity > 2 * self.r - 2:
             raise ConfigError(f"trajectory generation: key 'continuity' = {params.continuity} "
@@ -265,11 +266,16 @@ class TrajectoryGenerator:
         self._rows = [basis_rows(k, tau, 2 * self.r) for k in range(params.max_derivative + 1)]
 
     def generate(self, waypoints, group: str | None = None, rescaling: str | None = None,
-                 max_deviation: float | None = None) -> WaypointTrajectory:
+                 max_deviation: float | None = None, stamp: float = math.nan
+                 ) -> WaypointTrajectory:
         """waypoints (n >= 2, 4) [x, y, z, heading] in E; group: a constraint group name (default
         the YAML's); rescaling: "per_segment" or "uniform"; max_deviation [m] (default the YAML's;
-        sub-sectioning off when the YAML says so)."""
-        start = time.perf_counter()
+        sub-sectioning off when the YAML says so); stamp: the simulation time of the call [s]
+        for `compute_timer` (nan: outside a simulation)."""
+        with self.compute_timer.measure(stamp, "generate"):
+            return self._generate(waypoints, group, rescaling, max_deviation)
+
+    def _generate(self, waypoints, group, rescaling, max_deviation) -> WaypointTrajectory:
         p = self.params
         limits = self.groups.group(p.constraints if group is None else group)
         rescaling = p.rescaling if rescaling is None else rescaling
@@ -291,8 +297,7 @@ class TrajectoryGenerator:
             points = insert_midpoints(points, far)
             rounds += 1
         return WaypointTrajectory(points, times, coefficients, iterations, rounds,
-                                  float(deviation.max()), ratios, fallback,
-                                  time.perf_counter() - start, p.sample_period)
+                                  float(deviation.max()), ratios, fallback, p.sample_period)
 
     def _qp(self, segments: int) -> SegmentQp:
         if segments not in self._qps:

@@ -12,7 +12,6 @@ propagated state with priors as wide as its covariance (recovery), in the same f
 """
 import dataclasses as dc
 import enum
-import time
 
 import gtsam
 import numpy as np
@@ -20,6 +19,7 @@ import numpy as np
 from alight.systems.boundary import CameraFrame, ImuSamples
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, quaternion_product, rotation_between, rotation_matrix
+from alight.systems.timing import ComputeTimer
 from alight.systems.vio.backend import (BackendParams, DivergedError, Observation, SlidingWindow)
 from alight.systems.vio.frontend import (FrontendParams, KltTracker, Keypoints, is_keyframe,
                                          keypoints_of, virtual_stereo)
@@ -66,16 +66,17 @@ class Estimate:
 
 class VioEstimator:
     """`add_imu(samples)` with every IMU sample once, `add_frame(frame)` with every new camera
-    frame, `estimate()` for the latest propagated state (None before initialization)."""
+    frame, `estimate()` for the latest propagated state (None before initialization). `timer`
+    records the front-end time of every frame and the back-end time of every keyframe (parts
+    "frontend", "backend", at the frame's stamp)."""
 
-    def __init__(self, params: VioParams):
+    def __init__(self, params: VioParams, timer: ComputeTimer | None = None):
         self.p = params
+        self.timer = timer if timer is not None else ComputeTimer()
         self.status = VioStatus.INITIALIZING
         self.restarts = 0
         self.failed_restarts = 0       # restarts whose smoother update failed as well
         self._needs_restart = False
-        self.frontend_time = 0.0   # s, last frame
-        self.backend_time = 0.0    # s, last keyframe
         self.tracked = 0
         self._tracker = KltTracker(params.frontend)
         self._window: SlidingWindow | None = None
@@ -122,9 +123,8 @@ class VioEstimator:
         if not frame.valid or frame.stamp <= self._last_frame or frame.calibration is None:
             return
         self._last_frame = frame.stamp
-        start = time.perf_counter()
-        keypoints = keypoints_of(frame, self._tracker)
-        self.frontend_time = time.perf_counter() - start
+        with self.timer.measure(frame.stamp, "frontend"):
+            keypoints = keypoints_of(frame, self._tracker)
         self.tracked = len(keypoints)
         if self._window is None:
             self._window = SlidingWindow(self.p.backend, frame.calibration)
@@ -141,24 +141,23 @@ class VioEstimator:
         if len(usable) < self.p.min_features:
             self._update_status(frame.stamp)
             return
-        start = time.perf_counter()
-        pim = gtsam.PreintegratedCombinedMeasurements(window.imu_params, window.state.bias)
-        self._integrate(pim, window.state.t, frame.stamp)
         try:
-            if self.status == VioStatus.LOST or self._needs_restart:
-                self._restart(frame.stamp, pim, observations)
-            else:
-                try:
-                    window.add_keyframe(frame.stamp, pim, observations)
-                except DivergedError:
+            with self.timer.measure(frame.stamp, "backend"):
+                pim = gtsam.PreintegratedCombinedMeasurements(window.imu_params,
+                                                              window.state.bias)
+                self._integrate(pim, window.state.t, frame.stamp)
+                if self.status == VioStatus.LOST or self._needs_restart:
                     self._restart(frame.stamp, pim, observations)
+                else:
+                    try:
+                        window.add_keyframe(frame.stamp, pim, observations)
+                    except DivergedError:
+                        self._restart(frame.stamp, pim, observations)
         except DivergedError:   # the restart failed too (e.g. too few constrained landmarks):
             self.failed_restarts += 1   # bridge on the IMU from the last good keyframe and
             self._needs_restart = True  # restart at the next keyframe; LOST after max_imu_only
-            self.backend_time = time.perf_counter() - start
             return self._update_status(frame.stamp)
         self._needs_restart = False
-        self.backend_time = time.perf_counter() - start
         self.status = VioStatus.TRACKING
         self._after_keyframe()
 

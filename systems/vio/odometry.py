@@ -3,7 +3,8 @@ GTSAM sliding window over L(3), IMU propagation) sampled at the IMU period.
 
 The estimator holds a GTSAM smoother, which cannot live in a Drake context: like the MPC's OSQP
 workspace it is a member of the system, reset by the initialization event; one system serves one
-simulation at a time. Its outputs are discrete state, so they are reproducible from the context.
+simulation at a time. Its outputs are discrete state, so they are reproducible from the context;
+the front-end and back-end times go to its `compute_timer` (systems/timing.py), outside it.
 """
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -11,18 +12,18 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import STATE_ESTIMATE, CameraFrame, ImuSamples, VectorLayout
 from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.timing import ComputeTimer
 from alight.systems.vio.estimator import VioEstimator, VioParams, VioStatus
 
 # `odometry`: L(1) at the last camera frame: stamp [s]; status (VioStatus); p_WS [m], q_WS
 # (w, x, y, z), v_WS [m/s] in the estimator frame E; gyro and accelerometer biases [rad/s, m/s^2];
 # standard deviations of position, attitude (rotation vector in E) and velocity; keypoints in the
-# frame; landmarks in the window; keyframes so far; front-end and back-end time of the last
-# frame/keyframe [s]; stamp of the last keyframe [s]; window restarts after losses.
+# frame; landmarks in the window; keyframes so far; stamp of the last keyframe [s]; window
+# restarts after losses.
 VIO_ODOMETRY = VectorLayout("vio_odometry", [
     ("stamp", 1), ("status", 1), ("p_WS", 3), ("q_WS", 4), ("v_WS", 3), ("b_g", 3), ("b_a", 3),
     ("std_p", 3), ("std_rot", 3), ("std_v", 3), ("tracked", 1), ("landmarks", 1),
-    ("keyframes", 1), ("frontend_time", 1), ("backend_time", 1), ("last_keyframe", 1),
-    ("restarts", 1)])
+    ("keyframes", 1), ("last_keyframe", 1), ("restarts", 1)])
 
 VIO_FRAME_ID = 1.0  # the `frame_id` of the VIO's estimator frame in STATE_ESTIMATE (mocap is 0)
 
@@ -33,12 +34,14 @@ class VisualInertialOdometry(LeafSystem):
     Output `state_estimate`  STATE_ESTIMATE in E, IMU-propagated every `period` (valid 0 while
                              initializing or lost)
     Output `odometry`        VIO_ODOMETRY, updated with every camera frame and status change
+    `compute_timer` records the front-end and back-end times (VioEstimator).
     """
 
     def __init__(self, params: VioParams):
         super().__init__()
         self._params = params
-        self.estimator = VioEstimator(params)
+        self.compute_timer = ComputeTimer()
+        self.estimator = VioEstimator(params, self.compute_timer)
         self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
         self._rgbd = self.DeclareAbstractInputPort("rgbd", AbstractValue.Make(CameraFrame()))
         self._last = self.DeclareAbstractState(AbstractValue.Make((-1, -np.inf)))  # seq, stamp
@@ -51,7 +54,7 @@ class VisualInertialOdometry(LeafSystem):
         self.DeclareStateOutputPort("odometry", self._odometry)
 
     def _reset(self, context, state):
-        self.estimator = VioEstimator(self._params)
+        self.estimator = VioEstimator(self._params, self.compute_timer)
         state.get_mutable_abstract_state(self._last).set_value((-1, -np.inf))
 
     def _update(self, context, state):
@@ -100,8 +103,7 @@ class VisualInertialOdometry(LeafSystem):
         return VIO_ODOMETRY.pack(
             **values, status=float(e.status), tracked=e.tracked,
             landmarks=window.landmark_count() if window else 0,
-            keyframes=window.keyframes if window else 0, frontend_time=e.frontend_time,
-            backend_time=e.backend_time,
+            keyframes=window.keyframes if window else 0,
             last_keyframe=window.state.t if window and window.state else np.nan,
             restarts=e.restarts)
 
