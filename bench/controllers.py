@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from alight.diagrams.controllers import load_controllers_config, make_controller
+from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
 from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, CommandMode
 from alight.systems.rotations import heading_quaternion
 

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from alight.diagrams.landoff import fly_landoff
+from alight.diagrams.running.flights import fly_landoff
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config, make_sim_vehicle
-from alight.diagrams.track import resting_position
+from alight.diagrams.running.track import resting_position
 from alight.systems.plant.tether import TetherParams
 from alight.systems.rotations import tilt_deg
 from alight.systems.tracking.landoff_tracker import LandoffGoal, load_landoff_tracker_params

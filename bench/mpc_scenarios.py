@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.primitives import ConstantVectorSource
 
-from alight.diagrams.fly import fly_reference, load_linear_mpc
+from alight.diagrams.onboard.mpc_loop import load_linear_mpc
+from alight.diagrams.running.flights import fly_reference
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
 from alight.systems.plant.wind import WindParams
 from alight.systems.rotations import tilt_deg

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from alight.diagrams.fly import fly_waypoints, load_linear_model, load_linear_mpc
+from alight.diagrams.onboard.mpc_loop import load_linear_model, load_linear_mpc
+from alight.diagrams.running.flights import fly_waypoints
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
 from alight.systems.boundary import CONTROLLER_STATUS
 from alight.systems.control.linear_mpc import LinearMpc

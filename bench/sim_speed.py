@@ -16,7 +16,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.hover import pilot_model
+from alight.diagrams.onboard.pilot import pilot_model
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config, make_sim_vehicle
 from alight.systems.control.scripted_pilot import PilotProfile, ProfileSegment, ScriptedPilot
 from alight.systems.plant.hexacopter import add_hexacopter, load_hexacopter_params

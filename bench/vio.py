@@ -7,7 +7,9 @@ import tempfile
 import time
 
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
-from alight.diagrams.vio import evaluate_vio, fly_vio, load_rgbd_camera_params
+from alight.diagrams.analysis.vio import evaluate_vio
+from alight.diagrams.onboard.vio import load_rgbd_camera_params
+from alight.diagrams.running.flights import fly_vio
 
 WAYPOINTS = [[0, 0, 2], [6, 0, 2], [6, 6, 3], [0, 0, 2]]
 

@@ -56,7 +56,8 @@ def _vehicle_config(args, config=None):
 
 
 def _hover(args) -> int:
-    from alight.diagrams.hover import load_pilot_profile, run_hover
+    from alight.diagrams.onboard.pilot import load_pilot_profile
+    from alight.diagrams.running.flights import run_hover
     from alight.diagrams.running.simulation import make_meshcat
     config = _vehicle_config(args)
     profile = load_pilot_profile(args.profile)
@@ -76,7 +77,8 @@ def _keep_meshcat_open(args) -> None:
 
 def _fly(args) -> int:
     from alight.diagrams.running.simulation import make_meshcat
-    from alight.diagrams.uav import fly_plan, summarize_managed_flight
+    from alight.diagrams.analysis.flight import summarize_managed_flight
+    from alight.diagrams.running.flights import fly_plan
     from alight.systems.params import ConfigError
     try:
         plan = _flight_plan(args)
@@ -96,8 +98,8 @@ def _fly(args) -> int:
 
 def _flight_plan(args):
     """The --waypoints or --trajectory of `alight fly` as a FlightPlan (ValueError if bad)."""
-    from alight.diagrams.fly import parse_waypoints
-    from alight.diagrams.uav import FlightPlan, read_trajectory_file
+    from alight.diagrams.onboard.waypoints import parse_waypoints
+    from alight.diagrams.onboard.uav import FlightPlan, read_trajectory_file
     if (args.waypoints is None) == (args.trajectory is None):
         raise ValueError("give exactly one of --waypoints and --trajectory")
     if not (args.takeoff_height > 0.0):
@@ -115,8 +117,8 @@ def _flight_plan(args):
 def _fly_stack(args) -> dict:
     """The managed stack's options of `alight fly`: names checked against the YAML lists, the
     estimator (mocap or the bank), the scheduled controller switches."""
-    from alight.diagrams.control_manager import load_control_manager_config, parse_switch
-    from alight.diagrams.estimation import scenario_odometry
+    from alight.diagrams.onboard.control_manager import load_control_manager_config, parse_switch
+    from alight.diagrams.onboard.estimation import scenario_odometry
     from alight.systems.params import ConfigError
     config = load_control_manager_config()
     for option, name, names in (("--controller", args.controller, config.names),
@@ -136,7 +138,8 @@ def _fly_stack(args) -> dict:
 def _sysid(args) -> int:
     from pathlib import Path
     from alight.diagrams.running.paths import default_run_dir
-    from alight.diagrams.sysid import identify_from_ulog, run_sysid
+    from alight.diagrams.analysis.sysid import identify_from_ulog
+    from alight.diagrams.running.sysid import run_sysid
     from alight.systems.control.identification import IdentificationError
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("sysid", args.seed)
     try:
@@ -170,7 +173,7 @@ def _sim_autopilot(args) -> int:
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     config = None
     if args.scenario:  # the landing scenario's world: target, down camera, wind
-        from alight.diagrams.landing import vehicle_config
+        from alight.diagrams.scenario import vehicle_config
         from alight.systems.params import ConfigError
         try:
             config = vehicle_config(_land_scenario(args))
@@ -224,7 +227,7 @@ def _hil(args) -> int:
         return 2
     print("\n".join(result.lines()))
     if args.mission == "land":
-        from alight.diagrams.landing import mission_transitions
+        from alight.diagrams.analysis.landing import mission_transitions
         from alight.diagrams.running.run_log import RunLog
         for at, mode, reason in mission_transitions(RunLog(result.run_dir)):
             print(f"  {at:6.2f} s  {mode.name:11s} ({reason.name.lower().replace('_', ' ')})")
@@ -234,7 +237,7 @@ def _hil(args) -> int:
 def _hil_mission_options(args) -> dict:
     """The waypoints of --mission fly, the landing scenario of --mission land."""
     if args.mission == "fly":
-        from alight.diagrams.fly import parse_waypoints
+        from alight.diagrams.onboard.waypoints import parse_waypoints
         return {"waypoints": parse_waypoints(args.waypoints)}
     if args.mission == "land":
         return {"scenario": _land_scenario(args)}
@@ -243,7 +246,8 @@ def _hil_mission_options(args) -> dict:
 
 def _track(args) -> int:
     from alight.diagrams.running.simulation import make_meshcat
-    from alight.diagrams.track import TrackExperiment, fly_track, score
+    from alight.diagrams.analysis.track import score
+    from alight.diagrams.running.track import TrackExperiment, fly_track
     try:
         experiment = TrackExperiment(
             trajectory=args.trajectory, controller=args.controller, radius=args.radius,
@@ -267,7 +271,7 @@ def _track(args) -> int:
 def _thrust_curve(args) -> int:
     from pathlib import Path
     from alight.diagrams.running.paths import default_run_dir
-    from alight.diagrams.thrust_fit import run_thrust_curve
+    from alight.diagrams.running.thrust_curve import run_thrust_curve
     from alight.systems.plant.hexacopter import load_hexacopter_params
     from alight.systems.thrust_curve import ThrustCurve
     masses = [float(m) for m in args.masses.split(",")]
@@ -286,7 +290,7 @@ def _thrust_curve(args) -> int:
 
 
 def _land_scenario(args):
-    from alight.diagrams.campaign import CampaignJob, scenario_for
+    from alight.diagrams.running.campaign import CampaignJob, scenario_for
     return scenario_for(CampaignJob(args.scenario, args.target_speed, args.seed, "",
                                     getattr(args, "wind", None), getattr(args, "gusts", None),
                                     getattr(args, "camera", None),
@@ -295,7 +299,7 @@ def _land_scenario(args):
 
 def _check_landing_stack(args) -> None:
     """--stack / --controller: raises ConfigError naming the allowed controllers."""
-    from alight.diagrams.landing_managed import landing_manager_config
+    from alight.diagrams.onboard.landing_managed import landing_manager_config
     from alight.systems.params import ConfigError
     if args.stack == "managed":
         landing_manager_config(args.controller)
@@ -306,12 +310,13 @@ def _check_landing_stack(args) -> None:
 
 def _land(args) -> int:
     from alight.diagrams.running.paths import default_run_dir
-    from alight.diagrams.landing import mission_transitions, run_landing
-    from alight.diagrams.landing_plots import plot_mission, plot_paths
-    from alight.diagrams.landing_score import score_landing
+    from alight.diagrams.analysis.landing import mission_transitions
+    from alight.diagrams.running.landing import run_landing
+    from alight.diagrams.analysis.landing_plots import plot_mission, plot_paths
+    from alight.diagrams.analysis.landing import score_landing
     from alight.diagrams.running.simulation import make_meshcat
     from alight.systems.params import ConfigError
-    from alight.diagrams.landing_managed import tracker_switches
+    from alight.diagrams.analysis.landing import tracker_switches
     try:
         scenario = _land_scenario(args)
         _check_landing_stack(args)
@@ -346,8 +351,8 @@ def _land(args) -> int:
 
 def _campaign(args) -> int:
     from pathlib import Path
-    from alight.diagrams.campaign import (campaign_jobs, run_campaign, scenario_for,
-                                          write_summary)
+    from alight.diagrams.running.campaign import (campaign_jobs, run_campaign, scenario_for,
+                                                  write_summary)
     from alight.systems.params import ConfigError
     try:
         speeds = [float(v) for v in args.target_speeds.split(",") if v.strip()]
@@ -553,9 +558,11 @@ def make_parser() -> argparse.ArgumentParser:
 
 
 def _vio_eval(args) -> int:
-    from alight.diagrams.fly import parse_waypoints
+    from alight.diagrams.onboard.waypoints import parse_waypoints
     from alight.diagrams.running.paths import default_run_dir
-    from alight.diagrams.vio import evaluate_vio, fly_vio, load_rgbd_camera_params
+    from alight.diagrams.analysis.vio import evaluate_vio
+    from alight.diagrams.onboard.vio import load_rgbd_camera_params
+    from alight.diagrams.running.flights import fly_vio
     try:
         waypoints = parse_waypoints(args.waypoints)
     except ValueError as e:

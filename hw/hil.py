@@ -3,8 +3,9 @@ time, with the real-time runner's overrun reports and final safe command.
 
 The onboard side is a mission: one function per `--mission` that adds its systems to the builder
 on the vehicle's boundary ports and connects its command to the vehicle. They are the very onboard
-functions the simulation uses (diagrams/hover.py `add_pilot_onboard`, diagrams/fly.py
-`add_waypoint_onboard`, diagrams/landing.py `add_landing_onboard`); `fly` and `land` take the
+functions the simulation uses (diagrams/onboard/pilot.py `add_pilot_onboard`,
+diagrams/onboard/waypoints.py `add_waypoint_onboard`, diagrams/onboard/landing.py
+`add_landing_onboard`); `fly` and `land` take the
 channel mocap (hw/channel_odometry.py) as their odometry; `hover` flies an open-loop
 attitude/thrust profile and needs no position estimate.
 """
@@ -15,6 +16,10 @@ from typing import Callable
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
+from alight.diagrams.onboard.landing import add_landing_onboard
+from alight.diagrams.onboard.pilot import add_pilot_onboard, load_pilot_profile, pilot_model
+from alight.diagrams.onboard.waypoints import add_waypoint_onboard, mission_duration
+from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import RunLoggers, write_run_folder
 from alight.hw.channel_odometry import channel_odometry
 from alight.hw.endpoint import LOG
@@ -47,7 +52,6 @@ class Mission:
 def hover_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
                   odometry=None) -> Mission:
     """`alight hover`'s onboard side: the scripted pilot (open-loop attitude/thrust profile)."""
-    from alight.diagrams.hover import add_pilot_onboard, load_pilot_profile, pilot_model
     profile = load_pilot_profile(options.profile)
     return Mission(add_pilot_onboard(builder, vehicle, profile,
                                      pilot_model(options.vehicle_config)),
@@ -57,7 +61,6 @@ def hover_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
 def fly_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
                 odometry=None) -> Mission:
     """`alight fly`'s onboard side: the waypoints with the linear MPC, then land and disarm."""
-    from alight.diagrams.fly import add_waypoint_onboard, mission_duration
     if options.waypoints is None:
         raise MissionUnavailable("mission 'fly' needs waypoints (--waypoints '0,0,2; 3,0,2')")
     onboard = add_waypoint_onboard(builder, vehicle, options.waypoints, odometry=odometry)
@@ -68,7 +71,6 @@ def fly_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
 def land_mission(builder: DiagramBuilder, vehicle, options: MissionOptions,
                  odometry=None) -> Mission:
     """`alight land`'s onboard side: find the target, follow it and land on it (L Sec. 6)."""
-    from alight.diagrams.landing import add_landing_onboard
     scenario = options.scenario
     if scenario is None:
         raise MissionUnavailable("mission 'land' needs a landing scenario (--scenario)")
@@ -140,7 +142,6 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
     clock, so that a simulation that falls behind real time slows the onboard side with it.
     `down_camera` (an OpenCV device, e.g. "/dev/video0") feeds `down_image` from a real camera
     calibrated by models/down_camera.yaml."""
-    from alight.diagrams.running.paths import default_run_dir
     check_mission(mission, frame_address)
     clock = WallClock(realtime_rate)
     cameras = {"down_image": _down_camera(down_camera, clock)} if down_camera else {}

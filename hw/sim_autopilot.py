@@ -10,7 +10,7 @@ MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_LAND, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQ
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py. Camera
 frames and the simulated world's mocap estimate (the `mocap` sensor model of DESIGN.md: true pose
 plus noise and latency) go to the onboard side over the local frame channel (hw/frame_channel.py).
-The world is the vehicle config's: with a landing scenario's (diagrams/landing.py
+The world is the vehicle config's: with a landing scenario's (diagrams/scenario.py
 `vehicle_config`), the moving target, the down camera and the wind.
 """
 import collections
@@ -29,6 +29,11 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pymavlink.dialects.v20 import common as mavlink
 
+from alight.diagrams.onboard.mocap import add_mocap
+from alight.diagrams.running.paths import default_run_dir
+from alight.diagrams.running.run_log import add_run_logging, write_run_folder
+from alight.diagrams.world.sim_vehicle import make_sim_vehicle
+from alight.diagrams.world.visualization import start_recording, write_recording
 from alight.hw.autopilot_rules import ACCEPTED, UNSUPPORTED, Answer, AutopilotRules
 from alight.hw.connection import open_connection
 from alight.hw.endpoint import LOG, MavlinkEndpoint, addressed_to
@@ -407,9 +412,6 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
     """The simulated vehicle with the autopilot bridge closing its `fc_command` loop and the
     world's mocap system (`mocap`, default MocapParams(): the simulation's `mocap_odometry`)
     feeding the frame channel; returns (diagram, run loggers)."""
-    from alight.diagrams.mocap import add_mocap
-    from alight.diagrams.running.run_log import add_run_logging
-    from alight.diagrams.world.sim_vehicle import make_sim_vehicle
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
     commander = vehicle_config.flight_controller.commander
@@ -436,9 +438,6 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
     writes the run folder (with ground truth) and, if asked, the link statistics (JSON).
     `realtime_rate` below 1 slows the simulation (and the autopilot's clock) for a loaded machine;
     the companion must run at the same rate (`alight hil --realtime-rate`)."""
-    from alight.diagrams.running.paths import default_run_dir
-    from alight.diagrams.running.run_log import write_run_folder
-    from alight.diagrams.world.visualization import start_recording, write_recording
     from alight.hw.realtime import WallClock, run_realtime
     wall_clock = WallClock(realtime_rate)  # checks the rate before anything opens
     clock = SimClock(realtime_rate)

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from alight.diagrams.hover import fly_profile, load_pilot_profile
+from alight.diagrams.onboard.pilot import load_pilot_profile
+from alight.diagrams.running.flights import fly_profile
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
 from alight.systems.control.scripted_pilot import PilotProfile
 from alight.systems.params import load_params
@@ -41,7 +42,7 @@ def assert_landed(run, scenario, speed: float):
     """A landing run judged by the physics and held to L Table 1's ranges: landed, e_xy under
     0.5 m (the paper: 2.5-45.8 cm), 2-15 s from the first detection (4.8-7.7 s), the target at
     `speed`. Returns the score."""
-    from alight.diagrams.landing_score import score_landing
+    from alight.diagrams.analysis.landing import score_landing
     score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
     assert score.success, score.row()
     assert score.e_xy < 0.5

@@ -6,7 +6,7 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.controllers import load_controllers_config, make_controller
+from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
 from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, CommandMode
 from alight.systems.control.constraint_manager import (CONSTRAINT_STATUS, REQUEST, GroupRefusal,
                                                        load_constraint_manager_params,

@@ -9,11 +9,11 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.primitives import ConstantVectorSource
 
-from alight.diagrams.control_manager import (ControlManagerConfig, ControllerEntry,
-                                             TrackerEntry, build_controller, build_tracker,
-                                             check_control_manager_config,
-                                             load_control_manager_config, parse_switch)
-from alight.diagrams.controllers import load_controllers_config
+from alight.diagrams.onboard.control_manager import (ControlManagerConfig, ControllerEntry,
+                                                     TrackerEntry, build_controller, build_tracker,
+                                                     check_control_manager_config,
+                                                     load_control_manager_config, parse_switch)
+from alight.diagrams.onboard.controllers import load_controllers_config
 from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
                                                     EmergencyParams, FailsafeCause, ManagerMode,
@@ -292,7 +292,7 @@ def test_a_controller_takes_over_the_previous_ones_disturbance_estimates():
     """M Sec. 7.2: the newly active controller starts from the previous one's state: the MPC,
     activated with the SE(3)'s estimates on `last_disturbance`, publishes them from its first
     tick (its integrators are frozen during the activation ramp)."""
-    from alight.diagrams.controllers import make_controller
+    from alight.diagrams.onboard.controllers import make_controller
     from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
     controllers_config = load_controllers_config()
     dut = make_controller("mpc", controllers_config)

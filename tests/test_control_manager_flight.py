@@ -6,9 +6,10 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
-from alight.diagrams.control_manager import fly_managed, load_control_manager_config
+from alight.diagrams.onboard.control_manager import load_control_manager_config
+from alight.diagrams.running.flights import fly_managed
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.diagrams.track import TrackExperiment, make_trajectory, resting_position
+from alight.diagrams.running.track import TrackExperiment, make_trajectory, resting_position
 from alight.systems.control import analytic_reference as ref
 from alight.systems.control.control_manager import FailsafeCause, ManagerMode, Refusal
 from alight.systems.sensors.estimate_faults import EstimateFaultParams

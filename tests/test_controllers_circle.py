@@ -4,7 +4,8 @@ learns the drag with a time constant of m k_p / k_ib = 5 s on the laps before)."
 import numpy as np
 import pytest
 
-from alight.diagrams.track import TrackExperiment, fly_track, score
+from alight.diagrams.analysis.track import score
+from alight.diagrams.running.track import TrackExperiment, fly_track
 
 
 def circle(heading):

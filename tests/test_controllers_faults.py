@@ -3,7 +3,8 @@ noisy estimates, a 5 m estimator jump, and a feedforward landing from 10 m."""
 import numpy as np
 import pytest
 
-from alight.diagrams.track import TrackExperiment, fly_track, score
+from alight.diagrams.analysis.track import score
+from alight.diagrams.running.track import TrackExperiment, fly_track
 
 NOISE = 1.0        # m and m/s, sigma of M Fig. 12
 TILT_BOUND = 20.0  # deg: the MPC stays under it with sigma = 1 m, the SE(3) controller does not
@@ -52,7 +53,7 @@ def test_mpc_reacts_to_a_5_m_estimator_jump_within_its_constraints(jump):
 def failsafe(vehicle_config, tmp_path_factory):
     experiment = TrackExperiment(trajectory="hover", controller="se3", altitude=10.0,
                                  settle=0.0, hover_time=0.0, climb_limits=[3.0, 2.0, 4.0])
-    from alight.diagrams.track import make_trajectory, resting_position
+    from alight.diagrams.running.track import make_trajectory, resting_position
     from alight.diagrams.world.sim_vehicle import make_sim_vehicle
     at = make_trajectory(experiment, resting_position(make_sim_vehicle(vehicle_config)))
     experiment.failsafe_at = at.duration + 0.5

@@ -5,7 +5,8 @@ to zero (the landing paper's controller cannot remove it, L Sec. 8)."""
 import numpy as np
 import pytest
 
-from alight.diagrams.track import TrackExperiment, fly_track, score
+from alight.diagrams.analysis.track import score
+from alight.diagrams.running.track import TrackExperiment, fly_track
 from alight.systems.plant.drag import drag_force_B
 from alight.systems.plant.hexacopter import load_hexacopter_params
 from alight.systems.rotations import rotation_matrix

@@ -162,7 +162,7 @@ def test_controller_tilts_by_the_flight_controller_attitude_with_the_estimate_he
     """With `fc_attitude` connected the orientation is the flight controller's tilt turned to the
     estimate's heading (M footnote 18, M(12)-(14)); a non-finite message falls back to the
     estimate's own orientation. Seen through the roll rate that levels a hovering vehicle."""
-    from alight.diagrams.controllers import load_controllers_config, make_controller
+    from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
     from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
                                          CommandMode)
     from alight.systems.rotations import heading_quaternion, quaternion_product

@@ -5,7 +5,8 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
-from alight.diagrams.estimation import fly_bank, load_bank_params
+from alight.diagrams.onboard.estimation import load_bank_params
+from alight.diagrams.running.flights import fly_bank
 from alight.systems.params import load_params
 from alight.models import model_path
 from alight.systems.rotations import heading, rotation_matrix

@@ -8,7 +8,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from scipy.spatial.transform import Rotation
 
-from alight.diagrams.estimation import load_bank_params
+from alight.diagrams.onboard.estimation import load_bank_params
 from alight.systems.boundary import FC_ATTITUDE, STATE_ESTIMATE
 from alight.systems.estimation.bank import EstimatorBank
 from alight.systems.estimation.heading import heading_rate, rotation_z, with_heading

@@ -7,8 +7,8 @@ from pydrake.math import RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from alight.diagrams.estimation import BankOdometry, load_bank_params
-from alight.diagrams.uav import Mission
+from alight.diagrams.onboard.estimation import BankOdometry, load_bank_params
+from alight.diagrams.running.mission import Mission
 from alight.systems.boundary import FC_ATTITUDE, FC_STATUS, STATE_ESTIMATE
 from alight.systems.control.control_manager import (ControlManager, EmergencyParams,
                                                     ManagerMode, SafetyArea)

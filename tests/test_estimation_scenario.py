@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.estimation import BankOdometry, scenario_odometry
-from alight.diagrams.landing import build_landing, load_scenario, run_landing
+from alight.diagrams.onboard.estimation import BankOdometry, scenario_odometry
+from alight.diagrams.running.landing import build_landing, run_landing
+from alight.diagrams.scenario import load_scenario
 from alight.models import model_path
 from alight.systems.params import ConfigError
 

@@ -6,7 +6,8 @@ from pydrake.math import RollPitchYaw
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from alight.diagrams.hover import fly_profile, pilot_model
+from alight.diagrams.onboard.pilot import pilot_model
+from alight.diagrams.running.flights import fly_profile
 from alight.diagrams.running.run_log import add_run_logging
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.running.simulation import simulate

@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 import yaml
 
-from alight.diagrams.campaign import campaign_jobs, run_campaign, summarize
+from alight.diagrams.running.campaign import campaign_jobs, run_campaign, summarize
 from alight.diagrams.cli import main
-from alight.diagrams.landing import load_scenario, mission_transitions, run_landing
-from alight.diagrams.landing_score import score_landing
+from alight.diagrams.analysis.landing import mission_transitions
+from alight.diagrams.running.landing import run_landing
+from alight.diagrams.scenario import load_scenario
+from alight.diagrams.analysis.landing import score_landing
 from alight.diagrams.running.run_log import RunLog
 from alight.models import model_path
 from alight.systems.mission.landing import Mode

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from alight.diagrams.cli import main
-from alight.diagrams.landing import load_scenario, mission_transitions
-from alight.diagrams.landing_managed import landing_manager_config, tracker_switches
+from alight.diagrams.analysis.landing import mission_transitions
+from alight.diagrams.scenario import load_scenario
+from alight.diagrams.analysis.landing import tracker_switches
+from alight.diagrams.onboard.landing_managed import landing_manager_config
 from alight.diagrams.running.run_log import RunLog
 from alight.systems.control.control_manager import ManagerMode
 from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from alight.diagrams.controllers import load_controllers_config
-from alight.diagrams.landoff import fly_landoff
+from alight.diagrams.onboard.controllers import load_controllers_config
+from alight.diagrams.running.flights import fly_landoff
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.diagrams.track import resting_position
+from alight.diagrams.running.track import resting_position
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.control.force_controller import level_command
 from alight.systems.params import ConfigError

@@ -9,7 +9,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.primitives import ConstantVectorSource
 from scipy.signal import cont2discrete
 
-from alight.diagrams.fly import fly_reference, load_linear_model, load_linear_mpc
+from alight.diagrams.onboard.mpc_loop import load_linear_model, load_linear_mpc
+from alight.diagrams.running.flights import fly_reference
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
                                      STATE_ESTIMATE)
 from alight.systems.control.linear_model import (continuous_model, discretize,

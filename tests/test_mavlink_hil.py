@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from alight.diagrams.cli import main
-from alight.diagrams.landing import load_scenario, mission_transitions
-from alight.diagrams.landing_score import score_landing
+from alight.diagrams.analysis.landing import mission_transitions
+from alight.diagrams.scenario import load_scenario
+from alight.diagrams.analysis.landing import score_landing
 from alight.diagrams.running.run_log import read_run
 from alight.systems.boundary import ActiveMode
 from alight.systems.mission.landing import Mode

@@ -1,11 +1,11 @@
-"""The mission API (diagrams/uav.py Mission) on the MAVLink vehicle against `alight sim-autopilot`
+"""The mission API (diagrams/running/mission.py Mission) on the MAVLink vehicle against `alight sim-autopilot`
 over UDP loopback: the unchanged managed stack takes off, goes to a point and lands, judged by the
 simulated autopilot's physics."""
 import numpy as np
 
 from alight.diagrams.running.run_log import read_run
 from alight.hw.frame_channel import default_frame_address
-from alight.hw.mission import mavlink_mission
+from alight.diagrams.running.mission import mavlink_mission
 from mavlink_fake import SimAutopilotProcess
 
 

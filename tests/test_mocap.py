@@ -6,7 +6,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import VectorLogSink
 
-from alight.diagrams.mocap import add_mocap
+from alight.diagrams.onboard.mocap import add_mocap
 from alight.systems.boundary import GROUND_TRUTH, STATE_ESTIMATE
 from alight.systems.sensors.mocap import MocapParams
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
-from alight.diagrams.perception import load_target_estimator_params
+from alight.diagrams.onboard.perception import load_target_estimator_params
 from alight.diagrams.world.target import DownCameraRig
 from alight.models.textures import GROUND_TILE
 from alight.systems.perception.detector import PatternDetector, Rectifier

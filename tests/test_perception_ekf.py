@@ -11,9 +11,9 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import VectorLogSink
 from scipy.stats import chi2
 
-from alight.diagrams.hover import pilot_model
-from alight.diagrams.mocap import add_mocap
-from alight.diagrams.perception import add_target_perception, load_target_estimator_params
+from alight.diagrams.onboard.pilot import pilot_model
+from alight.diagrams.onboard.mocap import add_mocap
+from alight.diagrams.onboard.perception import add_target_perception, load_target_estimator_params
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.systems.boundary import GROUND_TRUTH, TARGET_ESTIMATE
 from alight.systems.control.scripted_pilot import ScriptedPilot

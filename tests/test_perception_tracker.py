@@ -8,7 +8,7 @@ from pydrake.common import RandomGenerator
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
-from alight.diagrams.perception import load_target_estimator_params
+from alight.diagrams.onboard.perception import load_target_estimator_params
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.world.target import DownCameraRig
 from alight.systems.boundary import FC_COMMAND

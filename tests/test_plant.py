@@ -11,7 +11,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import RandomSource
 
-from alight.diagrams.hover import fly_profile
+from alight.diagrams.running.flights import fly_profile
 from alight.systems.plant.drag import AerodynamicDrag
 from alight.systems.plant.hexacopter import add_hexacopter, airframe, load_hexacopter_params
 from alight.systems.plant.motors import EscThrustMap, first_order_motors

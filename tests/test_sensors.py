@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from alight.diagrams.hover import fly_profile
+from alight.diagrams.running.flights import fly_profile
 from alight.systems.rotations import rotation_matrix
 from conftest import profile
 

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from alight.diagrams.cli import main
-from alight.diagrams.fly import load_linear_mpc
+from alight.diagrams.onboard.mpc_loop import load_linear_mpc
 from alight.diagrams.running.run_log import RunLog
-from alight.diagrams.sysid import effective_damping, identify_from_ulog, run_sysid
+from alight.diagrams.analysis.sysid import identify_from_ulog
+from alight.diagrams.running.sysid import effective_damping, run_sysid
 from alight.hw.frames import q_wb_to_nf
 from alight.systems.control.identification import IdentificationError
 from alight.systems.control.linear_model import LinearModelParams

@@ -7,7 +7,7 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
-from alight.diagrams.control_manager import load_control_manager_config
+from alight.diagrams.onboard.control_manager import load_control_manager_config
 from alight.systems.boundary import REFERENCE, TARGET_ESTIMATE, TRACKER_STATUS
 from alight.systems.mission.reference_generator import low_pass_gain
 from alight.systems.params import ConfigError, load_params

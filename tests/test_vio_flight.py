@@ -5,10 +5,11 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
-from alight.diagrams.fly import fly_waypoints
-from alight.diagrams.landing import load_scenario, run_landing
+from alight.diagrams.running.flights import fly_waypoints
+from alight.diagrams.running.landing import run_landing
+from alight.diagrams.scenario import load_scenario
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
-from alight.diagrams.vio import VioRun, load_rgbd_camera_params
+from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params
 from alight.systems.vio.estimator import VioStatus
 from conftest import assert_landed
 

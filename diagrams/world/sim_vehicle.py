@@ -13,9 +13,9 @@ from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from alight.diagrams.world.flight_controller import make_flight_controller
+from alight.diagrams.world.ground import add_ground
 from alight.diagrams.world.rgbd_camera import add_rgbd_camera, add_rgbd_scene
 from alight.diagrams.world.target import add_target_scene, add_target_systems, perceived_ground
-from alight.diagrams.world.ground import add_ground
 from alight.models import model_path
 from alight.systems.autopilot.config import FlightControllerParams
 from alight.systems.params import bounded, load_params
@@ -25,9 +25,9 @@ from alight.systems.plant.hexacopter import (add_hexacopter, airframe, load_hexa
 from alight.systems.plant.motors import EscThrustMap, first_order_motors
 from alight.systems.plant.tether import Tether, TetherParams
 from alight.systems.plant.wind import Wind, WindParams
+from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.sensors.fc_estimate import FcEstimate, FcEstimateParams
 from alight.systems.sensors.ground_truth import GroundTruth
-from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.sensors.imu import Imu, ImuParams
 from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.target.vehicle import TargetParams

@@ -9,24 +9,16 @@ odometry (with the fault injector) along an analytic reference under the manager
 """
 import dataclasses as dc
 import importlib
-from pathlib import Path
 
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
-from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
-                                         make_controller)
-from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.running.simulation import simulate
-from alight.diagrams.track import add_faulty_mocap
+from alight.diagrams.onboard.controllers import CONTROLLERS, ControllersConfig, make_controller
+from alight.diagrams.running.run_log import RunLoggers, add_run_logging
 from alight.models import model_path
 from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_STATUS,
                                      REFERENCE, STATE_ESTIMATE, TRACKER_INPUTS, TRACKER_OUTPUTS,
                                      TRACKER_STATUS)
-from alight.systems.control import analytic_reference as ref
 from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
                                                     EmergencyParams, SafetyArea)
 from alight.systems.params import ConfigError, bounded, load_params
@@ -34,7 +26,6 @@ from alight.systems.tracking.landoff_tracker import make_landoff_tracker
 from alight.systems.tracking.mpc_tracker import make_mpc_tracker
 from alight.systems.tracking.speed_tracker import make_speed_tracker
 from alight.systems.tracking.target_tracker import make_target_tracker
-from alight.systems.sensors.estimate_faults import EstimateFaultParams
 
 
 @dc.dataclass
@@ -301,36 +292,3 @@ def add_managed_logging(builder, vehicle, managed: ManagedControllers, state_est
         loggers.add(builder, f"tracker_status_{name}", tracker.GetOutputPort("tracker_status"),
                     TRACKER_STATUS, period)
     return loggers
-
-
-def fly_managed(vehicle_config: SimVehicleConfig, trajectory: ref.Trajectory, seed: int = 0,
-                run_dir=None, config: ControlManagerConfig | None = None,
-                controllers_config: ControllersConfig | None = None,
-                faults: EstimateFaultParams | None = None,
-                schedule: list[tuple[float, str]] | None = None, duration: float | None = None,
-                switch_request_source=None, meshcat=None, realtime_rate: float = 0.0) -> RunLog:
-    """Flies the analytic `trajectory` (the goal) under the control manager and writes a run
-    folder. `switch_request_source(builder)` may return a port for `switch_request`."""
-    config = config or load_control_manager_config()
-    controllers_config = controllers_config or load_controllers_config(config.controllers_file)
-    builder = DiagramBuilder()
-    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
-    _, estimate = add_faulty_mocap(builder, vehicle, config.period, faults)
-    goal = builder.AddNamedSystem("goal", ref.AnalyticReference(trajectory, config.period))
-    request = switch_request_source(builder) if switch_request_source else None
-    managed = add_control_manager(builder, config, controllers_config, estimate,
-                                  goal.GetOutputPort("reference"), request, schedule,
-                                  fc_attitude=vehicle.GetOutputPort("fc_attitude"))
-    builder.Connect(managed.manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    loggers = add_managed_logging(builder, vehicle, managed, estimate,
-                                  goal.GetOutputPort("reference"), config.period)
-    diagram = builder.Build()
-    duration = trajectory.duration if duration is None else duration
-    simulator = simulate(diagram, duration, seed, meshcat, realtime_rate=realtime_rate)
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("managed", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
-        "command": "managed", "seed": seed, "duration": duration, "marks": trajectory.marks,
-        "controllers": config.names, "schedule": schedule or [], "faults": faults,
-        "control_manager": config, "vehicle_config": vehicle_config,
-        "controllers_config": controllers_config})
-    return RunLog(run_dir)

@@ -1,9 +1,6 @@
-"""The managed flight stack of M Sec. 7 on any vehicle's boundary ports, and the mission API.
-
-`add_managed_onboard` builds odometry -> control manager (its trackers and controllers from
-models/control_manager.yaml, M Sec. 7.2) -> `fc_command`, driven by the UAV manager (M Sec. 7.6)
-whose `command` input is exported as the diagram's `uav_command`. `Mission` is the small class a
-user script or notebook drives:
+"""The mission API: the small class a user script or notebook drives against the managed stack
+(diagrams/onboard/uav.py `add_managed_onboard`, M Sec. 7), on the simulated vehicle
+(`Mission.simulated`) or on a MAVLink flight controller (`mavlink_mission`):
 
     with Mission.simulated(seed=0) as mission:
         mission.takeoff(2.0)
@@ -15,6 +12,14 @@ user script or notebook drives:
 
 Each call sends one `UavCommand` and advances the simulation until the UAV manager reports it
 done, refused, or the call's timeout; it returns a `RoutineResult`.
+
+`mavlink_mission("udp:127.0.0.1:14540", frame_address=...)` puts the same managed stack on the
+MAVLink vehicle's boundary ports, advanced against the wall clock. Between calls the diagram does
+not advance, so a script should chain its calls (the flight controller keeps the last setpoint
+stream only while the diagram runs: a pause longer than its offboard timeout is an offboard loss,
+and PX4 fails safe). `close` (or leaving the `with` block) sends the final safe command of the
+real-time runner (disarm on the ground, failsafe descent in the air), closes the link and writes
+the run folder.
 """
 import dataclasses as dc
 import functools
@@ -25,107 +30,23 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.control_manager import (GOAL_KINDS, ControlManagerConfig, ManagedControllers,
-                                             add_control_manager, add_managed_logging,
-                                             connect_managed_vehicle,
-                                             load_control_manager_config)
-from alight.diagrams.controllers import ControllersConfig, load_controllers_config
-from alight.diagrams.fly import mocap_odometry
+from alight.diagrams.onboard.uav import ManagedOnboard, add_managed_onboard
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import RunLog, RunLoggers, write_run_folder
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.run_log import RunLog, write_run_folder
 from alight.diagrams.running.simulation import evaluate, finish_recording, start_simulation
-from alight.models import model_path
-from alight.systems.mission.uav_manager import (UAV_STATUS, Routine, UavCommand, UavManager,
-                                                UavManagerParams, UavRefusal)
-from alight.systems.control.constraint_manager import (CONSTRAINT_STATUS, ConstraintManager,
-                                                       GroupRefusal, make_constraint_manager)
-from alight.systems.params import ConfigError, load_params
-from alight.systems.rotations import tilt_deg
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.hw.channel_odometry import channel_odometry
+from alight.hw.frame_channel import FrameSubscriber
+from alight.hw.hil import MissionUnavailable
+from alight.hw.link import MavlinkLink
+from alight.hw.mavlink_vehicle import (LINK_STATUS, MavlinkVehicleParams, command_sender,
+                                       load_mavlink_vehicle_params, make_mavlink_vehicle)
+from alight.hw.realtime import Pacer, WallClock
 from alight.systems.boundary import STATE_ESTIMATE
+from alight.systems.control.constraint_manager import CONSTRAINT_STATUS, GroupRefusal
+from alight.systems.mission.uav_manager import UAV_STATUS, Routine, UavCommand, UavRefusal
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.trajectory_generation import make_trajectory_generator
-
-
-def load_uav_manager_params(filename: str = "uav_manager.yaml") -> UavManagerParams:
-    """A path, or a file name in models/; raises ConfigError naming the file and the key."""
-    return load_params(UavManagerParams, model_path(filename))
-
-
-@dc.dataclass
-class ManagedOnboard:
-    """Handles to the managed stack built by `add_managed_onboard`."""
-    vehicle: object
-    state_estimate: object           # the STATE_ESTIMATE port the stack flies on
-    managed: ManagedControllers
-    uav: UavManager
-    loggers: RunLoggers
-    groups: ConstraintManager
-
-
-def add_managed_onboard(builder, vehicle, config: ControlManagerConfig | None = None,
-                        controllers_config: ControllersConfig | None = None,
-                        uav_params: UavManagerParams | None = None, odometry=None,
-                        schedule: list[tuple[float, str]] | None = None,
-                        estimate_filter=None) -> ManagedOnboard:
-    """The managed stack on `vehicle`'s boundary ports (simulated or MAVLink). `odometry`
-    as in diagrams/fly.py `add_mpc_control` (default mocap); `schedule` the control manager's
-    timed controller switches; `estimate_filter(builder, port) -> port` may alter the estimate
-    (fault injection in tests). Exports the UAV manager's command input as `uav_command`."""
-    config = config or load_control_manager_config()
-    controllers_config = controllers_config or load_controllers_config(config.controllers_file)
-    estimate = (odometry or mocap_odometry())(builder, vehicle)
-    if estimate_filter is not None:
-        estimate = estimate_filter(builder, estimate)
-    groups = builder.AddNamedSystem("constraint_manager", make_constraint_manager())
-    uav = builder.AddNamedSystem("uav_manager", UavManager(
-        uav_params or load_uav_manager_params(), config.names, config.tracker_names,
-        config.safety_area if config.safety_area.enabled else None,
-        groups.constraint_group_names, groups.gain_group_names))
-    managed = add_control_manager(
-        builder, config, controllers_config, estimate,
-        switch_request=uav.GetOutputPort("switch_request"), schedule=schedule,
-        goals={kind: uav.GetOutputPort(f"{kind}_goal") for kind in GOAL_KINDS
-               if uav.HasOutputPort(f"{kind}_goal")},   # not its kinds (target) hold
-        fc_attitude=vehicle.GetOutputPort("fc_attitude"))
-    manager = managed.manager
-    _connect_groups(builder, groups, estimate, uav, managed)
-    builder.Connect(estimate, uav.GetInputPort("state_estimate"))
-    builder.Connect(vehicle.GetOutputPort("fc_status"), uav.GetInputPort("fc_status"))
-    builder.Connect(manager.GetOutputPort("manager_status"), uav.GetInputPort("manager_status"))
-    landing = managed.trackers[uav.params.landing_tracker]
-    if landing.HasOutputPort("landed"):
-        builder.Connect(landing.GetOutputPort("landed"), uav.GetInputPort("landed"))
-    connect_managed_vehicle(builder, managed, vehicle, uav.GetOutputPort("arm"),
-                            uav.GetOutputPort("tracker_request"), odometry, estimate)
-    builder.ExportInput(uav.GetInputPort("command"), "uav_command")
-    loggers = add_managed_logging(builder, vehicle, managed, estimate,
-                                  manager.GetOutputPort("reference"), config.period)
-    loggers.add(builder, "uav_status", uav.GetOutputPort("uav_status"), UAV_STATUS,
-                uav.params.period)
-    loggers.add(builder, "constraint_status", groups.GetOutputPort("constraint_status"),
-                CONSTRAINT_STATUS, uav.params.period)
-    return ManagedOnboard(vehicle, estimate, managed, uav, loggers, groups)
-
-
-def _connect_groups(builder, groups: ConstraintManager, estimate, uav, managed) -> None:
-    """The constraint manager (M Sec. 7.5) between the UAV manager's requests and the trackers'
-    `constraint_group` / controllers' `gain_group` inputs."""
-    builder.Connect(estimate, groups.GetInputPort("state_estimate"))
-    builder.Connect(uav.GetOutputPort("group_request"), groups.GetInputPort("request"))
-    for name, tracker in managed.trackers.items():
-        if tracker.HasInputPort("constraint_group"):
-            if list(getattr(tracker, "group_names", [])) != groups.constraint_group_names:
-                raise ConfigError(f"tracker {name!r} indexes constraint groups "
-                                  f"{getattr(tracker, 'group_names', None)}, the constraint "
-                                  f"manager {groups.constraint_group_names}: use one "
-                                  f"constraints file")
-            builder.Connect(groups.GetOutputPort("constraint_group"),
-                            tracker.GetInputPort("constraint_group"))
-    for controller in managed.controllers.values():
-        if controller.HasInputPort("gain_group"):
-            builder.Connect(groups.GetOutputPort("gain_group"),
-                            controller.GetInputPort("gain_group"))
 
 
 @dc.dataclass
@@ -346,96 +267,74 @@ class Mission:
 
 # --- `alight fly` --------------------------------------------------------------------------
 
-def read_trajectory_file(path) -> tuple[np.ndarray, float | None]:
-    """A CSV file with a header: columns x, y, z (and heading) are waypoints a trajectory is
-    generated through (M Sec. 6); with a column t [s, uniformly spaced] the rows are a sampled
-    trajectory flown as it is. Returns (rows [x, y, z, heading], sample period or None);
-    raises ValueError naming the file and what is wrong."""
-    import pandas as pd
+
+def mavlink_mission(connect: str, frame_address: str | None = None,
+                    params: MavlinkVehicleParams | None = None, wait: float = 10.0,
+                    realtime_rate: float = 1.0, follow_autopilot_clock: bool = False,
+                    seed: int = 0, run_dir=None, strict: bool = True, tick: float = 0.01,
+                    **stack) -> Mission:
+    """Connects (as `alight hil`: heartbeat, TIMESYNC, message rates), builds the managed stack on
+    the MAVLink vehicle and returns the Mission. The state estimate is `stack["odometry"]`, or
+    the simulated autopilot's mocap on the frame channel at `frame_address`.
+    `follow_autopilot_clock` (simulated autopilots only) also paces each `tick` on the autopilot's
+    clock, as `alight hil --follow-autopilot-clock`."""
+    params = params or load_mavlink_vehicle_params()
+    clock = WallClock(realtime_rate)
+    link = MavlinkLink.open(connect, params.link, clock)
+    frames = FrameSubscriber(frame_address) if frame_address else None
     try:
-        table = pd.read_csv(path, skipinitialspace=True)
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{path}: cannot read the trajectory CSV: {e}") from None
-    missing = [c for c in ("x", "y", "z") if c not in table.columns]
-    if missing or len(table) < 1:
-        raise ValueError(f"{path}: a header with columns x, y, z (heading, t optional) and at "
-                         f"least one row is needed; missing {missing}")
-    heading = table["heading"] if "heading" in table.columns else 0.0
-    rows = np.column_stack([table["x"], table["y"], table["z"],
-                            np.broadcast_to(heading, len(table))]).astype(float)
-    if not np.all(np.isfinite(rows)):
-        raise ValueError(f"{path}: every x, y, z, heading must be a finite number")
-    if "t" not in table.columns:
-        return rows, None
-    t = table["t"].to_numpy(float)
-    steps = np.diff(t)
-    if len(t) < 2 or not np.all(np.isfinite(t)) or steps.min() <= 0 \
-            or np.ptp(steps) > 1e-6 * max(1.0, steps.mean()):
-        raise ValueError(f"{path}: column t must be at least two increasing, uniformly "
-                         f"spaced times [s]")
-    return rows, float(steps.mean())
+        if "odometry" not in stack:
+            if frames is None:
+                raise MissionUnavailable("the mission API needs a position estimate: pass "
+                                         "odometry=..., or frame_address for the simulated "
+                                         "autopilot's mocap")
+            stack["odometry"] = channel_odometry(frames, link)
+        builder = DiagramBuilder()
+        vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames))
+        onboard = add_managed_onboard(builder, vehicle, **stack)
+        onboard.loggers.add(builder, "link_status", vehicle.GetOutputPort("link_status"),
+                            LINK_STATUS)
+        diagram = builder.Build()
+        sender = command_sender(diagram.GetSubsystemByName("vehicle"))
+        link.wait_for_autopilot(wait)
+        rates = link.request_message_rates()
+        if follow_autopilot_clock:
+            link.follow_autopilot_clock()
+        clock.restart()   # onboard time starts with the simulation
+        simulator = start_simulation(diagram, seed, realtime_rate=clock.rate)
+    except BaseException:
+        _close(link, frames)
+        raise
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("mission-mavlink", seed)
+    mission = Mission(diagram, onboard, simulator, run_dir, {
+        "seed": seed, "connect": connect, "vehicle": params, "message_rates": rates,
+        "realtime_rate": realtime_rate, "follow_autopilot_clock": follow_autopilot_clock},
+        strict)
+    pacer = Pacer(link.autopilot_time, stall=1.0) if follow_autopilot_clock else None
+    mission.advance_to = lambda t: _advance(simulator, t, tick, pacer)
+
+    def safe_stop() -> str:
+        try:
+            sender.wait_idle()
+            return link.safe_stop()
+        finally:
+            _close(link, frames)
+    mission.closers.append(safe_stop)
+    return mission
 
 
-@dc.dataclass
-class FlightPlan:
-    """What `alight fly` flies: take off to `takeoff_height`, then through `waypoints` (rows
-    x, y, z(, heading), a generated trajectory) or a sampled trajectory (`samples` every
-    `sample_period` s), then land here."""
-    waypoints: np.ndarray | None = None
-    samples: np.ndarray | None = None
-    sample_period: float | None = None
-    takeoff_height: float = 2.0
-    constraints: str | None = None      # the trajectory's constraint group (M Sec. 7.5)
+def _advance(simulator: Simulator, t_end: float, tick: float, pacer) -> None:
+    """AdvanceTo in `tick` steps (the real-time rate paces them), each also waiting for the
+    autopilot's clock when `pacer` is given."""
+    t = simulator.get_context().get_time()
+    while t < t_end - 1e-9:
+        t = min(t + tick, t_end)
+        if pacer is not None:
+            pacer.wait_until(t)
+        simulator.AdvanceTo(t)
 
 
-def fly_plan(plan: FlightPlan, vehicle_config: SimVehicleConfig | None = None, seed: int = 0,
-             run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
-             controller: str | None = None, tracker: str | None = None, **stack) -> RunLog:
-    """`alight fly` on the managed stack: take-off, the plan, landing, through the mission API.
-    `controller` / `tracker` replace the UAV manager's flying pair; `stack` as
-    `Mission.simulated` (odometry, schedule, log, ...)."""
-    params = load_uav_manager_params()
-    params = dc.replace(params, flying_controller=controller or params.flying_controller,
-                        flying_tracker=tracker or params.flying_tracker)
-    mission = Mission.simulated(vehicle_config, seed, run_dir, meshcat, record, realtime_rate,
-                                strict=False, uav_params=params, **stack)
-    with mission:
-        if mission.takeoff(plan.takeoff_height):
-            if plan.samples is not None:
-                mission.trajectory(TrackerGoal(plan.samples, 0.0, plan.sample_period))
-            else:
-                mission.fly_through(plan.waypoints, plan.constraints)
-            mission.land()
-        mission.metadata.update({"command": "fly", "plan": plan, "controller":
-                                 params.flying_controller, "tracker": params.flying_tracker})
-    return mission.run_log
-
-
-def summarize_managed_flight(run: RunLog) -> list[str]:
-    """Printed after `alight fly`: each routine's outcome, closest approach to the plan's
-    points, speed, tilt, and the controllers' and trackers' tick times."""
-    p = run.field("ground_truth", "p_WB").to_numpy()
-    plan = run.metadata["plan"]
-    points = np.asarray(plan["waypoints"] if plan["waypoints"] is not None
-                        else plan["samples"], float)[:, :3]
-    if plan["waypoints"] is None:
-        points = points[[0, -1]]
-    closest = [float(np.min(np.linalg.norm(p - w, axis=1))) for w in points]
-    tilt = tilt_deg(run.field("ground_truth", "q_WB").to_numpy())
-    lines = [f"{r['routine']:12s}  " + ("done" if r["done"] else
-                                        f"refused ({r['refusal']})" if r["refusal"] else
-                                        "timed out") + f" after {r['duration']:.1f} s"
-             for r in run.metadata["routines"]]
-    lines += [f"landed and disarmed   {bool(run['fc_status']['armed'].iloc[-1] < 0.5)}"
-              f" after {run['ground_truth']['time'].iloc[-1]:.1f} s",
-              "closest approach      " + ", ".join(f"{d:.2f} m" for d in closest),
-              f"max speed / tilt      "
-              f"{np.linalg.norm(run.field('ground_truth', 'v_WB'), axis=1).max():.2f} m/s / "
-              f"{tilt.max():.1f} deg"]
-    for stream in sorted(s for s in run.streams if s.startswith(("status_", "tracker_status_"))):
-        table = run[stream]
-        busy = table["compute_time"][table["valid"] > 0.5] * 1e3
-        if len(busy) and busy.max() > 0:
-            lines.append(f"{stream + ' tick':34s} mean {busy.mean():.2f} ms, "
-                         f"max {busy.max():.2f} ms")
-    return lines + [f"run folder            {run.path}"]
+def _close(link: MavlinkLink, frames: FrameSubscriber | None) -> None:
+    link.close()
+    if frames is not None:
+        frames.close()

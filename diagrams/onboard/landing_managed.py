@@ -7,23 +7,23 @@ controller of the control manager (the landing paper's `linear_mpc` by default, 
 `se3`); the mission's arm request [arm, thrust enable] is the control manager's `arm` input
 (Landed disarms).
 
-`alight land --stack managed [--controller NAME]` runs it (diagrams/landing.py `run_landing`).
+`alight land --stack managed [--controller NAME]` runs it (diagrams/running/landing.py
+`run_landing`).
 """
 import dataclasses as dc
 
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.control_manager import (ControlManagerConfig, ManagedControllers,
-                                             add_control_manager, add_managed_logging,
-                                             connect_managed_vehicle,
-                                             load_control_manager_config)
-from alight.diagrams.controllers import load_controllers_config
-from alight.diagrams.fly import mocap_odometry
-from alight.diagrams.landing import (LandingScenario, add_down_camera_perception,
-                                     add_mission_logging, landed_and_disarmed, vehicle_config)
-from alight.diagrams.perception import TargetPerceptionPorts
-from alight.diagrams.running.run_log import RunLog, RunLoggers
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.onboard.control_manager import (ControlManagerConfig, ManagedControllers,
+                                                     add_control_manager, add_managed_logging,
+                                                     connect_managed_vehicle,
+                                                     load_control_manager_config)
+from alight.diagrams.onboard.controllers import load_controllers_config
+from alight.diagrams.onboard.landing import (add_down_camera_perception, add_mission_logging,
+                                             landed_and_disarmed)
+from alight.diagrams.onboard.mpc_loop import mocap_odometry
+from alight.diagrams.onboard.perception import TargetPerceptionPorts
+from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.running.simulation import DisarmedAfter
 from alight.systems.mission.landing import LandingMission
 from alight.systems.mission.landing_requests import LandingRequests
@@ -68,11 +68,11 @@ def landing_manager_config(controller: str = "linear_mpc",
                       initial_tracker=LANDING_TRACKERS[0])
 
 
-def add_landing_managed(builder: DiagramBuilder, scenario: LandingScenario, vehicle,
+def add_landing_managed(builder: DiagramBuilder, scenario, vehicle,
                         odometry=None, controller: str = "linear_mpc",
                         config: ControlManagerConfig | None = None) -> LandingManagedOnboard:
     """The landing mission on the managed stack, on `vehicle`'s boundary ports (simulated or
-    MAVLink). `odometry` as in diagrams/fly.py `add_mpc_control` (default mocap); the linear
+    MAVLink). `odometry` as in diagrams/onboard/mpc_loop.py `add_mpc_control` (default mocap); the linear
     MPC takes the scenario's tuning (`scenario.mpc`)."""
     config = landing_manager_config(controller, config)
     controllers_config = dc.replace(load_controllers_config(config.controllers_file),
@@ -101,21 +101,3 @@ def add_landing_managed(builder: DiagramBuilder, scenario: LandingScenario, vehi
                         scenario.mission.period)
     return LandingManagedOnboard(vehicle, estimate, mission, requests, managed, perception,
                                  loggers)
-
-
-def tracker_switches(run: RunLog) -> list[tuple[float, str]]:
-    """The control manager's active tracker over a managed landing run: (time [s], name) at the
-    start and at every switch (`manager_status`; names from the run's metadata)."""
-    names = run.metadata["trackers"]
-    status = run["manager_status"]
-    changed = status[status["tracker_switches"].diff().fillna(1.0) != 0]
-    return [(float(row["time"]), names[int(row["tracker"])]) for _, row in changed.iterrows()]
-
-
-def build_landing_managed(builder: DiagramBuilder, scenario: LandingScenario, meshcat=None,
-                          odometry=None, controller: str = "linear_mpc"
-                          ) -> tuple[SimVehicleConfig, LandingManagedOnboard]:
-    """The simulated vehicle in the scenario's world with the managed landing stack on it."""
-    config = vehicle_config(scenario)
-    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
-    return config, add_landing_managed(builder, scenario, vehicle, odometry, controller)

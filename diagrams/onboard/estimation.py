@@ -1,6 +1,7 @@
 """Builds the estimator bank (M Sec. 3.5, 7.1) into a diagram: its sources (simulated sensor
 models, or the mocap source) from the bank YAML, the bank, and the command-derived acceleration
-input; `BankOdometry` is the `odometry` hook of `fly.add_mpc_loop` / `fly_waypoints`.
+input; `BankOdometry` is the `odometry` hook of `mpc_loop.add_mpc_control` (and the
+runners' `add_mpc_loop` / `fly_waypoints`).
 
 A source entry in the bank YAML names its kind and, for simulation, its sensor model's YAML
 (`sensor:`); `SENSOR_MODELS` maps the kind to the model. Adding a simulated source kind is one
@@ -12,8 +13,10 @@ import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.systems.primitives import ConstantVectorSource, DiscreteTimeDelay, RandomSource
 
-from alight.diagrams.mocap import add_mocap
+from alight.diagrams.onboard.mocap import add_mocap
+from alight.diagrams.onboard.mpc_loop import load_linear_model
 from alight.models import model_path
+from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.estimation.bank import BankParams, EstimatorBank, check_bank
 from alight.systems.estimation.command_acceleration import CommandAcceleration
 from alight.systems.estimation.frames import FrameAnchor
@@ -132,7 +135,6 @@ class BankOdometry:
     def connect_command(self, builder, command_port, controller_acceleration=None,
                         estimate=None) -> None:
         if self._mass is None:
-            from alight.diagrams.fly import load_linear_model
             model = load_linear_model()
             self._mass, self._curve = model.mass, ThrustCurve(model.thrust_a, model.thrust_b)
         acceleration = builder.AddNamedSystem("command_acceleration",
@@ -150,7 +152,6 @@ class BankOdometry:
                         self.bank.system.GetInputPort("desired_acceleration"))
 
     def log(self, builder, loggers) -> None:
-        from alight.systems.boundary import STATE_ESTIMATE
         loggers.add(builder, "bank_estimate", self.bank.state_estimate, STATE_ESTIMATE)
         loggers.add(builder, "bank_status", self.bank.status, self.bank.system.status)
 
@@ -183,15 +184,3 @@ def active_filter_names(run, params: BankParams) -> np.ndarray:
     """The active filter's name at every `bank_status` row of a run folder."""
     names = np.array([f.name for f in params.filters])
     return names[run["bank_status"]["active"].to_numpy().astype(int)]
-
-
-def fly_bank(config, params: BankParams, duration: float, run_dir, seed: int = 0,
-             hold=(0.0, 0.0, 3.0), request: str | None = None, sensors: dict | None = None):
-    """Takes off to `hold` (in the anchor frame) and holds it for `duration` s with the linear
-    MPC on the bank's estimate (tests, bench, notebook). Returns the RunLog, with the streams
-    `bank_estimate` and `bank_status` besides the MPC loop's."""
-    from alight.diagrams.fly import fly_reference
-    odometry = BankOdometry(params, request=request, sensors=sensors)
-    p_hold = np.asarray(hold, float)
-    return fly_reference(config, lambda t: (p_hold, np.zeros(3)), duration, run_dir, seed,
-                         odometry=odometry, log=odometry.log)

@@ -1,56 +1,26 @@
-"""System identification of the landing paper's model, L Sec. 6.1 (`alight sysid`).
+"""System identification of the landing paper's model, L Sec. 6.1 (`alight sysid`): the maths and
+the plots.
 
-Simulated vehicle: one flight exciting each axis alone (fit set) and one exciting all axes at once
-(validation set), flown by the pilot-like ExcitationPilot through the attitude+thrust interface with
-mocap odometry; the fit L(11)-(12) is reported as VAF per signal on the validation set with a plot
-like L Fig. 6, and written to a YAML file the MPC reads. PX4 logs: the attitude model L(12) from
+The excitation flights (diagrams/running/sysid.py) give a fit set (each axis alone) and a
+validation set (all axes at once), flown by the pilot-like ExcitationPilot through the
+attitude+thrust interface with mocap odometry; the fit L(11)-(12) is reported as VAF per signal on
+the validation set with a plot like L Fig. 6. PX4 logs: the attitude model L(12) from
 `vehicle_attitude_setpoint` and `vehicle_attitude`.
 """
 import dataclasses as dc
 from pathlib import Path
 
 import numpy as np
-from pydrake.common.yaml import yaml_dump_typed
-from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.hover import pilot_model
-from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.mocap import add_mocap
-from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.running.simulation import simulate
-from alight.systems.boundary import STATE_ESTIMATE
-from alight.systems.control.excitation_pilot import (ExcitationParams, ExcitationPilot,
-                                                     ExcitationSegment)
+from alight.diagrams.running.run_log import RunLog
 from alight.systems.control.identification import (AxisData, check_excitation,
                                                    damped_velocity_windows, fit_attitude_axis,
                                                    fit_damping, simulate_attitude, vaf)
 from alight.systems.control.linear_model import (GRAVITY, LinearModelParams, euler_pitch_roll_yaw,
                                                  rotate_to_navigation)
-from alight.systems.plant.hexacopter import load_hexacopter_params
-from alight.systems.sensors.mocap import MocapParams
 from alight.systems.thrust_curve import ThrustCurve
 
 SIGNALS = ("pitch", "roll", "vx", "vy", "vz")
-
-
-def fly_excitation(config: SimVehicleConfig, params: ExcitationParams, seed: int,
-                   run_dir: Path) -> RunLog:
-    """One excitation flight with mocap odometry, logged to `run_dir`."""
-    builder = DiagramBuilder()
-    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config))
-    estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), MocapParams())
-    model = pilot_model(config)
-    pilot = builder.AddNamedSystem("pilot", ExcitationPilot(params, model.mass, model.curve))
-    builder.Connect(estimate, pilot.GetInputPort("state_estimate"))
-    builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    loggers = add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command"))
-    loggers.add(builder, "state_estimate", estimate, STATE_ESTIMATE)
-    simulator = simulate(builder.Build(), params.duration, seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
-        "command": "sysid", "seed": seed, "duration": params.duration, "config": config,
-        "excitation": params})
-    return RunLog(run_dir)
 
 
 def axis_data(run: RunLog, t_start: float, t_end: float, mass: float, curve: ThrustCurve,
@@ -141,36 +111,6 @@ def identify(fit: dict[str, AxisData], validation: AxisData, mass: float,
                        simulated, fit)
 
 
-FIT_FLIGHT = [ExcitationSegment(25.0, "pitch"), ExcitationSegment(25.0, "roll"),
-              ExcitationSegment(20.0, "thrust")]
-VALIDATION_FLIGHT = [ExcitationSegment(30.0, "all")]
-
-
-def run_sysid(config: SimVehicleConfig, seed: int = 0, run_dir: Path | None = None,
-              output: Path | None = None, excitation: ExcitationParams | None = None,
-              fit_segments=FIT_FLIGHT, validation_segments=VALIDATION_FLIGHT) -> SysidReport:
-    """Flies the fit and validation flights, identifies, writes the YAML and the Fig. 6 plot."""
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("sysid", seed)
-    base = excitation or ExcitationParams()
-    fit_params = dc.replace(base, seed=base.seed, segments=list(fit_segments))
-    validation_params = dc.replace(base, seed=base.seed + 1, segments=list(validation_segments))
-    fit_run = fly_excitation(config, fit_params, seed, run_dir / "fit")
-    validation_run = fly_excitation(config, validation_params, seed + 1, run_dir / "validation")
-    model = pilot_model(config)
-    fit, start = {}, fit_params.takeoff_time
-    for segment in fit_params.segments:
-        fit[segment.axes] = axis_data(fit_run, start, start + segment.duration, model.mass,
-                                      model.curve)
-        start += segment.duration
-    validation = axis_data(validation_run, validation_params.takeoff_time,
-                           validation_params.duration, model.mass, model.curve)
-    report = identify(fit, validation, model.mass, model.curve)
-    plot_validation(report, run_dir / "sysid_validation.png")
-    if output is not None:
-        Path(output).write_text(yaml_dump_typed(report.params))
-    return report
-
-
 def plot_validation(report: SysidReport, path: Path, title: str = "validation set") -> Path:
     """Measured vs model response per signal, like L Fig. 6."""
     import matplotlib
@@ -197,17 +137,6 @@ def plot_validation(report: SysidReport, path: Path, title: str = "validation se
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
-
-
-def effective_damping(config: SimVehicleConfig, data: AxisData) -> np.ndarray:
-    """The plant's drag (linear + quadratic, per body axis) as the best linear damping [1/s] over
-    the velocities of `data`: c = (c1 E[v^2] + c2 E[|v|^3]) / (m E[v^2])."""
-    params = load_hexacopter_params(config.vehicle)
-    v = data.velocity_N
-    c1, c2 = np.asarray(params.drag_linear), np.asarray(params.drag_quadratic)
-    mass = pilot_model(config).mass
-    return (c1 * np.mean(v**2, axis=0) + c2 * np.mean(np.abs(v)**3, axis=0)) \
-        / (mass * np.mean(v**2, axis=0))
 
 
 @dc.dataclass

@@ -13,6 +13,7 @@ import dataclasses as dc
 import numpy as np
 
 from alight.diagrams.running.run_log import RunLog
+from alight.systems.mission.landing import Mode, Reason
 from alight.systems.rotations import rotation_matrix, tilt_deg
 
 PLATFORM_HALF_SIZE = 0.75   # m, the 1.5 m x 1.5 m platform
@@ -119,3 +120,20 @@ def _speed_window(t: np.ndarray, start: float, end: int) -> np.ndarray:
     if np.isfinite(start):
         window &= t >= start
     return window if window.any() else np.arange(len(t)) <= end
+
+
+def mission_transitions(run: RunLog) -> list[tuple[float, Mode, Reason]]:
+    """Every mode transition of a landing run: (time [s], new mode, reason)."""
+    status = run["mission_status"]
+    changed = status[status["transitions"].diff().fillna(status["transitions"]) != 0]
+    return [(float(r["time"]), Mode(int(r["mode"])), Reason(int(r["reason"])))
+            for _, r in changed.iterrows()]
+
+
+def tracker_switches(run: RunLog) -> list[tuple[float, str]]:
+    """The control manager's active tracker over a managed landing run: (time [s], name) at the
+    start and at every switch (`manager_status`; names from the run's metadata)."""
+    names = run.metadata["trackers"]
+    status = run["manager_status"]
+    changed = status[status["tracker_switches"].diff().fillna(1.0) != 0]
+    return [(float(row["time"]), names[int(row["tracker"])]) for _, row in changed.iterrows()]

@@ -32,7 +32,7 @@ class CampaignJob:
 
 def scenario_for(job: CampaignJob):
     """The job's scenario with its overrides applied (and validated)."""
-    from alight.diagrams.landing import check_estimator, load_scenario
+    from alight.diagrams.scenario import check_estimator, load_scenario
     from alight.systems.params import validate
     scenario = load_scenario(job.scenario)
     if job.target_speed is not None:
@@ -53,8 +53,8 @@ def run_job(job: CampaignJob) -> dict:
     """Flies and scores one mission (runs in a worker process); returns its table row."""
     import time
 
-    from alight.diagrams.landing import run_landing
-    from alight.diagrams.landing_score import score_landing
+    from alight.diagrams.running.landing import run_landing
+    from alight.diagrams.analysis.landing import score_landing
     start = time.perf_counter()
     scenario = scenario_for(job)
     run = run_landing(scenario, seed=job.seed, run_dir=job.run_dir, stack=job.stack,

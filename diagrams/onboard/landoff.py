@@ -1,29 +1,21 @@
-"""Take-off and landing on the landoff tracker (M Sec. 4.2) in closed loop: the simulated vehicle
-on mocap odometry, the landoff tracker (always active) wired straight to one flight-stack
-controller (SE(3) or MPC force feedback), and an arm gate that disarms once the tracker reports
-`landed`. `fly_landoff` flies a schedule of goals and writes a run folder; the tests and
-bench/landoff.py (the tethered take-off of docs/benchmarks.md) use it.
+"""Take-off and landing on the landoff tracker (M Sec. 4.2) in closed loop: mocap odometry, the
+landoff tracker (always active) wired straight to one flight-stack controller (SE(3) or MPC force
+feedback), and an arm gate that disarms once the tracker reports `landed`. diagrams/running/flights.py
+`fly_landoff` flies a schedule of goals on the simulated vehicle and writes a run folder; the tests
+and bench/landoff.py (the tethered take-off of docs/benchmarks.md) use it.
 """
-from pathlib import Path
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.framework import LeafSystem
 from pydrake.systems.primitives import AffineSystem, ConstantVectorSource
 
-from alight.diagrams.controllers import ControllersConfig, load_controllers_config, make_controller
-from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.mocap import add_mocap
-from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
-from alight.diagrams.running.simulation import simulate
-from alight.systems.boundary import (CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE,
-                                     TRACKER_STATUS, VectorLayout)
+from alight.diagrams.onboard.controllers import ControllersConfig, make_controller
+from alight.diagrams.onboard.mocap import add_mocap
+from alight.systems.boundary import REFERENCE, VectorLayout
 from alight.systems.control.arm_gate import ArmGate
 from alight.systems.sensors.mocap import MocapParams
-from alight.systems.tracking.landoff_tracker import (LandoffTrackerParams,
-                                                     load_landoff_tracker_params,
-                                                     make_landoff_tracker)
+from alight.systems.tracking.landoff_tracker import LandoffTrackerParams, make_landoff_tracker
 
 LANDED = VectorLayout("landed", [("landed", 1)])
 
@@ -80,34 +72,3 @@ def add_landoff_loop(builder, vehicle, controllers_config: ControllersConfig,
     builder.Connect(arm.get_output_port(), gate.GetInputPort("arm"))
     builder.Connect(command, vehicle.GetInputPort("fc_command"))
     return estimate, tracker, feedback, command
-
-
-def fly_landoff(vehicle_config: SimVehicleConfig, schedule: list[tuple[float, object]],
-                duration: float, seed: int = 0, run_dir=None,
-                tracker_params: LandoffTrackerParams | None = None, controller: str = "se3",
-                controllers_config: ControllersConfig | None = None, meshcat=None) -> RunLog:
-    """Flies the goal `schedule` ([(time, LandoffGoal)]) for `duration` s; the run folder has the
-    vehicle's streams, `state_estimate`, `reference`, `tracker_status`, `landed` and
-    `controller_status`."""
-    controllers_config = controllers_config or load_controllers_config()
-    tracker_params = tracker_params or load_landoff_tracker_params()
-    builder = DiagramBuilder()
-    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
-    estimate, tracker, feedback, command = add_landoff_loop(
-        builder, vehicle, controllers_config, tracker_params, schedule, controller)
-    period = tracker_params.period
-    loggers = add_run_logging(builder, vehicle, command, period)
-    loggers.add(builder, "state_estimate", estimate, STATE_ESTIMATE, period)
-    loggers.add(builder, "reference", tracker.GetOutputPort("reference"), REFERENCE, period)
-    loggers.add(builder, "tracker_status", tracker.GetOutputPort("tracker_status"),
-                TRACKER_STATUS, period)
-    loggers.add(builder, "landed", tracker.GetOutputPort("landed"), LANDED, period)
-    loggers.add(builder, "controller_status", feedback.GetOutputPort("controller_status"),
-                CONTROLLER_STATUS, period)
-    simulator = simulate(builder.Build(), duration, seed, meshcat)
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("landoff", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
-        "command": "landoff", "seed": seed, "duration": duration, "controller": controller,
-        "schedule": [[t, repr(goal)] for t, goal in schedule], "tracker": tracker_params,
-        "vehicle_config": vehicle_config, "controllers_config": controllers_config})
-    return RunLog(run_dir)

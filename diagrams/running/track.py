@@ -17,30 +17,21 @@ import dataclasses as dc
 from pathlib import Path
 
 import numpy as np
-from pydrake.common import RandomDistribution
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import RandomSource, TrajectorySource
-from pydrake.trajectories import PiecewisePolynomial
 
-from alight.diagrams.controllers import (CONTROLLERS, ControllersConfig, load_controllers_config,
-                                         make_controller)
-from alight.diagrams.fly import load_linear_model, load_linear_mpc
+from alight.diagrams.analysis.track import score
+from alight.diagrams.onboard.controllers import (CONTROLLERS, ControllersConfig,
+                                                 load_controllers_config)
+from alight.diagrams.onboard.track import add_controller_loop, add_loop_logging
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.mocap import add_mocap
-from alight.diagrams.running.run_log import RunLog, RunLoggers, add_run_logging, write_run_folder
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.running.run_log import RunLog, write_run_folder
 from alight.diagrams.running.simulation import simulate
-from alight.systems.boundary import CONTROLLER_STATUS, GROUND_TRUTH, REFERENCE, STATE_ESTIMATE
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.systems.boundary import GROUND_TRUTH
 from alight.systems.control import analytic_reference as ref
-from alight.systems.control.arm_gate import ArmGate
-from alight.systems.control.linear_mpc import LinearMpc
-from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
-from alight.systems.control.timed_switch import TimedSwitch
 from alight.systems.params import bounded, choice
 from alight.systems.plant.hexacopter import load_hexacopter_params
-from alight.systems.rotations import tilt_deg
-from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults
-from alight.systems.sensors.mocap import MocapParams
+from alight.systems.sensors.estimate_faults import EstimateFaultParams
 
 TRAJECTORIES = ("circle", "steps", "hover")
 TRACK_CONTROLLERS = ("se3", "mpc", "linear_mpc")
@@ -126,101 +117,6 @@ def set_vehicle_mass(diagram, vehicle_config: SimVehicleConfig, root_context, ma
     body.SetMass(plant.GetMyMutableContextFromRoot(root_context), mass)
 
 
-@dc.dataclass
-class ControllerLoop:
-    """Handles to the closed loop built by `add_controller_loop`."""
-    vehicle: object
-    controllers: dict
-    switch: TimedSwitch
-    state_estimate_port: object
-    true_estimate_port: object
-    reference_port: object
-
-
-def make_track_controller(name: str, config: ControllersConfig):
-    """The flight-stack controllers by name (`make_controller`), or the landing paper's
-    `linear_mpc` with its parameters from models/linear_model.yaml and models/linear_mpc.yaml."""
-    if name == "linear_mpc":
-        return LinearMpc(load_linear_model(), load_linear_mpc())
-    return make_controller(name, config)
-
-
-def add_arm_gate(builder, command_port, name: str, idle: float = 0.5):
-    """An `ArmGate` on `command_port`: arm request from t = 0, thrust from `idle` s on (the
-    flight controller arms only at low thrust; the force controllers ramp up on their own)."""
-    gate = builder.AddNamedSystem(name, ArmGate())
-    arm = builder.AddNamedSystem(f"{name}_request", TrajectorySource(
-        PiecewisePolynomial.ZeroOrderHold([0.0, idle, idle + 1.0],
-                                          np.array([[1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]))))
-    builder.Connect(command_port, gate.GetInputPort("fc_command"))
-    builder.Connect(arm.get_output_port(), gate.GetInputPort("arm"))
-    return gate.GetOutputPort("fc_command")
-
-
-def add_faulty_mocap(builder, vehicle, period: float, faults: EstimateFaultParams | None = None,
-                     mocap: MocapParams | None = None):
-    """Mocap odometry of `vehicle` and, when `faults` is active, the fault injector after it:
-    (the true mocap port, the port the controllers read)."""
-    mocap_port = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
-    if faults is None or not faults.active:
-        return mocap_port, mocap_port
-    injector = builder.AddNamedSystem("estimate_faults", EstimateFaults(faults))
-    noise = builder.AddNamedSystem("estimate_fault_noise", RandomSource(
-        RandomDistribution.kGaussian, 6, period))
-    builder.Connect(noise.get_output_port(), injector.GetInputPort("noise"))
-    builder.Connect(mocap_port, injector.GetInputPort("state_estimate"))
-    return mocap_port, injector.GetOutputPort("state_estimate")
-
-
-def add_controller_loop(builder, vehicle_diagram, controllers_config: ControllersConfig,
-                        trajectory: ref.Trajectory, names: list[str], start_times: list[float],
-                        faults: EstimateFaultParams | None = None,
-                        mocap: MocapParams | None = None) -> ControllerLoop:
-    """Vehicle + mocap (+ fault injector) + the named controllers, controller i active from
-    start_times[i], following the analytic `trajectory`."""
-    vehicle = builder.AddNamedSystem("vehicle", vehicle_diagram)
-    mocap_port, estimate = add_faulty_mocap(builder, vehicle, controllers_config.period, faults,
-                                            mocap)
-    reference = builder.AddNamedSystem("reference", ref.AnalyticReference(
-        trajectory, controllers_config.period))
-    switch = builder.AddNamedSystem("switch", TimedSwitch(start_times, controllers_config.period))
-    controllers = {}
-    for i, name in enumerate(names):
-        controller = builder.AddNamedSystem(f"controller_{i}_{name}",
-                                            make_track_controller(name, controllers_config))
-        builder.Connect(estimate, controller.GetInputPort("state_estimate"))
-        builder.Connect(reference.GetOutputPort("reference"), controller.GetInputPort("reference"))
-        builder.Connect(switch.GetOutputPort(f"active_{i}"), controller.GetInputPort("active"))
-        builder.Connect(switch.GetOutputPort("fc_command"), controller.GetInputPort("last_command"))
-        if controller.HasInputPort("fc_attitude"):
-            builder.Connect(vehicle.GetOutputPort("fc_attitude"),
-                            controller.GetInputPort("fc_attitude"))
-        command = controller.GetOutputPort("fc_command")
-        if name == "linear_mpc":
-            command = add_arm_gate(builder, command, f"arm_gate_{i}")
-        builder.Connect(command, switch.GetInputPort(f"fc_command_{i}"))
-        controllers[f"{i}_{name}"] = controller
-    builder.Connect(switch.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
-    return ControllerLoop(vehicle, controllers, switch, estimate, mocap_port,
-                          reference.GetOutputPort("reference"))
-
-
-def add_loop_logging(builder, loop: ControllerLoop, period: float) -> RunLoggers:
-    """The vehicle's streams, the (faulty) estimate, the reference, and per controller its status,
-    desired acceleration M(53) and disturbance estimate M(35)-(37)."""
-    loggers = add_run_logging(builder, loop.vehicle, loop.switch.GetOutputPort("fc_command"))
-    loggers.add(builder, "state_estimate", loop.state_estimate_port, STATE_ESTIMATE)
-    loggers.add(builder, "reference", loop.reference_port, REFERENCE)
-    for key, controller in loop.controllers.items():
-        loggers.add(builder, f"status_{key}", controller.GetOutputPort("controller_status"),
-                    CONTROLLER_STATUS, period)
-        if controller.HasOutputPort("disturbance_estimate"):
-            loggers.add(builder, f"disturbance_{key}",
-                        controller.GetOutputPort("disturbance_estimate"), DISTURBANCE_ESTIMATE,
-                        period)
-    return loggers
-
-
 def fly_track(vehicle_config: SimVehicleConfig, experiment: TrackExperiment, seed: int = 0,
               run_dir=None, controllers_config: ControllersConfig | None = None, meshcat=None,
               record=None, realtime_rate: float = 0.0, duration: float | None = None,
@@ -255,59 +151,9 @@ def fly_track(vehicle_config: SimVehicleConfig, experiment: TrackExperiment, see
         "vehicle_mass": vehicle_mass})
     run = RunLog(run_dir)
     if plots:
-        from alight.diagrams.track_plots import plot_track
+        from alight.diagrams.analysis.track_plots import plot_track
         plot_track(run)
     return run
-
-
-@dc.dataclass
-class TrackScore:
-    """Ground-truth figures of a track run over [start, end] (the scored window)."""
-    mean_position_error: float   # m, |p_WB - p_d| (true position vs the reference)
-    max_position_error: float    # m
-    max_tilt: float              # deg, angle of b3 from e3
-    max_speed: float             # m/s
-    max_acceleration: float      # m/s^2 (finite differences of the true velocity, 0.1 s)
-    mean_heading_error: float    # deg
-    window: tuple[float, float]  # s
-
-    def lines(self) -> list[str]:
-        return [f"scored window         {self.window[0]:.1f} s - {self.window[1]:.1f} s",
-                f"position error        mean {self.mean_position_error:.3f} m, "
-                f"max {self.max_position_error:.3f} m",
-                f"heading error         mean {self.mean_heading_error:.2f} deg",
-                f"max tilt              {self.max_tilt:.1f} deg",
-                f"max speed / accel.    {self.max_speed:.2f} m/s / {self.max_acceleration:.2f} "
-                "m/s^2"]
-
-
-def score(run: RunLog, start: float | None = None, end: float | None = None) -> TrackScore:
-    """Scores `run` against its reference and ground truth, by default over its marks."""
-    marks = run.metadata["marks"]
-    start = marks["start"] if start is None else start
-    end = marks["end"] if end is None else end
-    truth, reference = run["ground_truth"], run["reference"]
-    time = truth["time"].to_numpy()
-    inside = (time >= start) & (time <= end)
-    p = run.field("ground_truth", "p_WB").to_numpy()[inside]
-    # The reference is logged on the same 10 ms grid; interpolate to be safe.
-    p_d = np.column_stack([np.interp(time[inside], reference["time"], reference[f"p_{i}"])
-                           for i in range(3)])
-    heading_d = np.interp(time[inside], reference["time"], np.unwrap(reference["heading"]))
-    q = run.field("ground_truth", "q_WB").to_numpy()[inside]
-    tilt = tilt_deg(q)
-    eta = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]),
-                     1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
-    heading_error = np.degrees(np.abs(np.angle(np.exp(1j * (eta - heading_d)))))
-    v = run.field("ground_truth", "v_WB").to_numpy()
-    stride = max(1, int(round(0.1 / np.median(np.diff(time)))))
-    a = np.linalg.norm(v[stride:] - v[:-stride], axis=1) / (time[stride:] - time[:-stride])
-    a_inside = inside[stride:] & inside[:-stride]
-    error = np.linalg.norm(p - p_d, axis=1)
-    return TrackScore(float(error.mean()), float(error.max()), float(tilt.max()),
-                      float(np.linalg.norm(v[inside], axis=1).max()),
-                      float(a[a_inside].max()) if a_inside.any() else 0.0,
-                      float(heading_error.mean()), (float(start), float(end)))
 
 
 def section8_experiments(controller: str, short: bool = False) -> dict[str, TrackExperiment]:

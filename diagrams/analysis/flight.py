@@ -1,0 +1,84 @@
+"""Summaries of a flight's run folder: the hover demo's (`alight hover`) and the managed stack's
+(`alight fly`)."""
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+
+from alight.diagrams.running.run_log import RunLog
+from alight.systems.control.scripted_pilot import PilotProfile
+from alight.systems.rotations import tilt_deg
+
+
+@dc.dataclass
+class HoverSummary:
+    run_dir: Path
+    max_altitude: float        # m above the resting height
+    hover_altitude_std: float  # m, during the hover segment
+    max_tilt: float            # deg
+    touchdown_speed: float     # m/s, vertical, at the first ground contact after the flight
+    disarmed_at_end: bool
+
+    def lines(self) -> list[str]:
+        return [f"max altitude      {self.max_altitude:6.2f} m",
+                f"hover altitude sd {self.hover_altitude_std:6.3f} m",
+                f"max tilt          {self.max_tilt:6.2f} deg",
+                f"touchdown speed   {self.touchdown_speed:6.2f} m/s",
+                f"disarmed at end   {self.disarmed_at_end}",
+                f"run folder        {self.run_dir}"]
+
+
+def summarize_hover(run: RunLog, profile: PilotProfile) -> HoverSummary:
+    truth = run["ground_truth"]
+    z = truth["p_WB_2"].to_numpy()
+    z0 = z[0]
+    t = truth["time"].to_numpy()
+    # The hover segment is the longest segment with zero vertical acceleration while armed.
+    starts = np.cumsum([0.0] + [s.duration for s in profile.segments])
+    hover = max(range(len(profile.segments)), key=lambda i: profile.segments[i].duration
+                if profile.segments[i].arm and profile.segments[i].vertical_acceleration == 0.0
+                and starts[i] < 15 else -1)
+    in_hover = (t >= starts[hover] + 1.0) & (t <= starts[hover + 1])
+    q = run.field("ground_truth", "q_WB").to_numpy()
+    tilt = tilt_deg(q)
+    vz = truth["v_WB_2"].to_numpy()
+    airborne = np.flatnonzero(z > z0 + 0.3)
+    touchdown_speed = 0.0
+    if len(airborne):
+        after = np.flatnonzero((t > t[airborne[-1]]) & (z < z0 + 0.01))
+        if len(after):
+            touchdown_speed = float(abs(vz[max(after[0] - 1, 0)]))
+    status = run["fc_status"]
+    return HoverSummary(run.path, float(z.max() - z0),
+                        float(np.std(z[in_hover])) if in_hover.any() else float("nan"),
+                        float(tilt.max()), touchdown_speed, bool(status["armed"].iloc[-1] < 0.5))
+
+
+def summarize_managed_flight(run: RunLog) -> list[str]:
+    """Printed after `alight fly`: each routine's outcome, closest approach to the plan's
+    points, speed, tilt, and the controllers' and trackers' tick times."""
+    p = run.field("ground_truth", "p_WB").to_numpy()
+    plan = run.metadata["plan"]
+    points = np.asarray(plan["waypoints"] if plan["waypoints"] is not None
+                        else plan["samples"], float)[:, :3]
+    if plan["waypoints"] is None:
+        points = points[[0, -1]]
+    closest = [float(np.min(np.linalg.norm(p - w, axis=1))) for w in points]
+    tilt = tilt_deg(run.field("ground_truth", "q_WB").to_numpy())
+    lines = [f"{r['routine']:12s}  " + ("done" if r["done"] else
+                                        f"refused ({r['refusal']})" if r["refusal"] else
+                                        "timed out") + f" after {r['duration']:.1f} s"
+             for r in run.metadata["routines"]]
+    lines += [f"landed and disarmed   {bool(run['fc_status']['armed'].iloc[-1] < 0.5)}"
+              f" after {run['ground_truth']['time'].iloc[-1]:.1f} s",
+              "closest approach      " + ", ".join(f"{d:.2f} m" for d in closest),
+              f"max speed / tilt      "
+              f"{np.linalg.norm(run.field('ground_truth', 'v_WB'), axis=1).max():.2f} m/s / "
+              f"{tilt.max():.1f} deg"]
+    for stream in sorted(s for s in run.streams if s.startswith(("status_", "tracker_status_"))):
+        table = run[stream]
+        busy = table["compute_time"][table["valid"] > 0.5] * 1e3
+        if len(busy) and busy.max() > 0:
+            lines.append(f"{stream + ' tick':34s} mean {busy.mean():.2f} ms, "
+                         f"max {busy.max():.2f} ms")
+    return lines + [f"run folder            {run.path}"]

@@ -1,0 +1,34 @@
+"""Evaluates a VIO run (`alight vio-eval`): ATE, RPE per metre, processing times; TUM files for
+evo."""
+from pathlib import Path
+
+import numpy as np
+
+from alight.systems.vio.metrics import ate_rmse, rpe_per_metre, write_tum
+
+
+def evaluate_vio(run) -> dict:
+    """ATE and RPE per metre (evo's definitions, `systems/vio/metrics`) of the valid VIO estimate
+    against the ground truth, processing times; writes the TUM files into the run folder."""
+    estimate = run["vio_estimate"]
+    valid = estimate["valid"].to_numpy() > 0.5
+    t = estimate["time"].to_numpy()[valid]
+    p = run.field("vio_estimate", "p_EB").to_numpy()[valid]
+    q = run.field("vio_estimate", "q_EB").to_numpy()[valid]
+    truth = run["ground_truth"]
+    p_true = np.column_stack([np.interp(t, truth["time"], truth[f"p_WB_{i}"]) for i in range(3)])
+    q_true = run.field("ground_truth", "q_WB").to_numpy()[
+        np.clip(np.searchsorted(truth["time"].to_numpy(), t), 0, len(truth) - 1)]
+    write_tum(Path(run.path) / "vio_estimate.tum", t, p, q)
+    write_tum(Path(run.path) / "ground_truth.tum", t, p_true, q_true)
+    odometry = run["vio_odometry"]
+    keyframes = odometry["keyframes"].diff().fillna(0) > 0
+    travelled = float(np.linalg.norm(np.diff(p_true, axis=0), axis=1).sum())
+    return {"valid_fraction": float(valid.mean()), "ate_rmse": ate_rmse(p, p_true),
+            "rpe_per_m": rpe_per_metre(p, q, p_true, q_true, 1.0),
+            "final_drift": float(np.linalg.norm(p[-1] - p_true[-1]) / max(travelled, 1e-9)),
+            "travelled": travelled,
+            "frontend_ms": float(odometry["frontend_time"][odometry["tracked"] > 0].mean() * 1e3),
+            "backend_ms": float(odometry["backend_time"][keyframes].mean() * 1e3),
+            "backend_max_ms": float(odometry["backend_time"][keyframes].max() * 1e3),
+            "restarts": int(odometry["restarts"].max()), "run_folder": str(run.path)}

@@ -1,0 +1,76 @@
+"""The onboard landing stack (L Sec. 6-7) on any vehicle's boundary ports (the simulated or the
+MAVLink vehicle): odometry, target perception, the mission state machine L Sec. 6.4 with its
+reference generation L Sec. 6.3, the linear MPC (`add_landing_onboard`). `alight hil --mission land`
+puts it on the MAVLink vehicle (hw/hil.py). `scenario` is a diagrams/scenario.py LandingScenario
+(onboard/ does not import it: the scenario is built from onboard parts)."""
+import dataclasses as dc
+
+from pydrake.systems.framework import DiagramBuilder
+
+from alight.diagrams.onboard.mpc_loop import (MpcLoop, add_mpc_control, add_mpc_logging,
+                                              load_linear_mpc)
+from alight.diagrams.onboard.perception import TargetPerceptionPorts, add_target_perception
+from alight.diagrams.running.run_log import RunLoggers
+from alight.diagrams.running.simulation import DisarmedAfter, evaluate
+from alight.systems.boundary import TARGET_ESTIMATE
+from alight.systems.mission.landing import MISSION_STATUS, LandingMission, Mode
+from alight.systems.sensors.camera_faults import CameraBlackout
+
+
+@dc.dataclass
+class LandingOnboard:
+    """Handles to the onboard landing stack built by `add_landing_onboard`."""
+    mission: LandingMission
+    loop: MpcLoop
+    perception: TargetPerceptionPorts
+    loggers: RunLoggers
+
+    def finished(self, settle_time: float) -> DisarmedAfter:
+        """Stop condition: `settle_time` s after the mission landed and the flight controller
+        disarmed."""
+        return landed_and_disarmed(self.mission, self.loop.vehicle, settle_time)
+
+
+def landed_and_disarmed(mission: LandingMission, vehicle, settle_time: float) -> DisarmedAfter:
+    """Stop condition: `settle_time` s after `mission` landed and `vehicle` disarmed."""
+    return DisarmedAfter(lambda context: MISSION_STATUS.get(evaluate(
+        mission, "mission_status", context), "mode") == Mode.LANDED, vehicle, settle_time)
+
+
+def add_down_camera_perception(builder: DiagramBuilder, scenario, vehicle,
+                               state_estimate) -> TargetPerceptionPorts:
+    """Target perception on `vehicle`'s `down_image` with the scenario's camera blackouts."""
+    image = vehicle.GetOutputPort("down_image")
+    if scenario.camera_blackouts:
+        blackout = builder.AddNamedSystem("camera_blackout",
+                                          CameraBlackout(scenario.camera_blackouts))
+        builder.Connect(image, blackout.get_input_port())
+        image = blackout.get_output_port()
+    return add_target_perception(builder, image, state_estimate)
+
+
+def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: LandingMission,
+                        target_estimate, period: float) -> None:
+    """The mission's status and the target estimate, at the mission's `period`."""
+    loggers.add(builder, "mission_status", mission.GetOutputPort("mission_status"),
+                MISSION_STATUS, period=period)
+    loggers.add(builder, "target_estimate", target_estimate, TARGET_ESTIMATE, period=period)
+
+
+def add_landing_onboard(builder: DiagramBuilder, scenario, vehicle,
+                        odometry=None) -> LandingOnboard:
+    """The onboard landing stack on `vehicle`'s boundary ports (the simulated or the MAVLink
+    vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, odometry and
+    the linear MPC (`add_mpc_control`), target perception on `down_image` (with the scenario's
+    camera blackouts) and the run logging. `odometry` as in `add_mpc_control`."""
+    mission = builder.AddNamedSystem("mission", LandingMission(scenario.mission))
+    loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
+                           mission.GetOutputPort("arm"), odometry=odometry,
+                           mpc_params=load_linear_mpc(scenario.mpc))
+    perception = add_down_camera_perception(builder, scenario, vehicle, loop.state_estimate_port)
+    builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))
+    builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
+    loggers = add_mpc_logging(builder, loop, mission.GetOutputPort("reference"))
+    add_mission_logging(builder, loggers, mission, perception.target_estimate,
+                        scenario.mission.period)
+    return LandingOnboard(mission, loop, perception, loggers)
