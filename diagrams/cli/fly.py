@@ -1,0 +1,99 @@
+"""`alight fly`: its options and what it runs (`HELP` says what it does)."""
+import argparse
+import sys
+
+from alight.diagrams.cli.options import add_common, keep_meshcat_open, sim_vehicle_config
+
+NAME = "fly"
+HELP = ("take off, fly a trajectory through waypoints (or from a file) on the flight stack's "
+        "trackers and controllers (control manager, UAV manager), land")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(NAME, help=HELP, description=HELP)
+    add_common(parser)
+    parser.add_argument("--waypoints", metavar="'X,Y,Z; X,Y,Z; ...'",
+                        help="waypoints in W [m], e.g. '0,0,5; 10,0,5; 10,10,3': a trajectory "
+                             "through them is generated under the constraint group (M Sec. 6)")
+    parser.add_argument("--trajectory", metavar="FILE.csv",
+                        help="CSV with a header: x,y,z[,heading] waypoints (a trajectory is "
+                             "generated), or t,x,y,z[,heading] samples (flown as they are)")
+    parser.add_argument("--controller", metavar="NAME",
+                        help="the flying controller (models/control_manager.yaml: se3, mpc, "
+                             "linear_mpc, ...; default models/uav_manager.yaml)")
+    parser.add_argument("--tracker", metavar="NAME",
+                        help="the flying tracker (default mpc_tracker)")
+    parser.add_argument("--switch-controller-at", action="append", default=[],
+                        metavar="T:NAME", help="switch to controller NAME at T s (repeatable)")
+    parser.add_argument("--constraints", metavar="GROUP",
+                        help="constraint group of the generated trajectory (slow, medium, fast)")
+    parser.add_argument("--takeoff-height", type=float, default=2.0, metavar="M",
+                        help="take-off height above the start [m] (default 2)")
+    parser.add_argument("--estimator", default="mocap", metavar="NAME",
+                        help="state estimate: 'mocap' (default), 'bank' (the arbiter chooses) or a "
+                             "filter of the bank (requested; the arbiter falls back if unreliable)")
+    parser.add_argument("--bank", default="estimator_bank.yaml", metavar="FILE.yaml",
+                        help="the estimator bank: sources, filters, arbiter (a path, or a file "
+                             "name in models/)")
+    parser.set_defaults(run=run)
+    return parser
+
+
+def run(args) -> int:
+    from alight.diagrams.running.simulation import make_meshcat
+    from alight.diagrams.analysis.flight import summarize_managed_flight
+    from alight.diagrams.running.flights import fly_plan
+    from alight.systems.params import ConfigError
+    try:
+        plan = _flight_plan(args)
+        stack = _fly_stack(args)
+    except (ValueError, ConfigError) as e:
+        print(f"alight fly: {e}", file=sys.stderr)
+        return 2
+    config = sim_vehicle_config(args)
+    meshcat = make_meshcat(args.meshcat, args.record)
+    run = fly_plan(plan, config, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
+                   record=args.record, realtime_rate=1.0 if args.meshcat else 0.0,
+                   controller=args.controller, tracker=args.tracker, **stack)
+    print("\n".join(summarize_managed_flight(run)))
+    keep_meshcat_open(args)
+    return 0
+
+
+def _flight_plan(args):
+    """The --waypoints or --trajectory of `alight fly` as a FlightPlan (ValueError if bad)."""
+    from alight.diagrams.onboard.waypoints import parse_waypoints
+    from alight.diagrams.onboard.uav import FlightPlan, read_trajectory_file
+    if (args.waypoints is None) == (args.trajectory is None):
+        raise ValueError("give exactly one of --waypoints and --trajectory")
+    if not (args.takeoff_height > 0.0):
+        raise ValueError(f"--takeoff-height must be > 0 m, got {args.takeoff_height}")
+    if args.waypoints is not None:
+        return FlightPlan(waypoints=parse_waypoints(args.waypoints),
+                          takeoff_height=args.takeoff_height, constraints=args.constraints)
+    rows, period = read_trajectory_file(args.trajectory)
+    if period is None:
+        return FlightPlan(waypoints=rows, takeoff_height=args.takeoff_height,
+                          constraints=args.constraints)
+    return FlightPlan(samples=rows, sample_period=period, takeoff_height=args.takeoff_height)
+
+
+def _fly_stack(args) -> dict:
+    """The managed stack's options of `alight fly`: names checked against the YAML lists, the
+    estimator (mocap or the bank), the scheduled controller switches."""
+    from alight.diagrams.onboard.control_manager import load_control_manager_config, parse_switch
+    from alight.diagrams.onboard.estimation import scenario_odometry
+    from alight.systems.params import ConfigError
+    config = load_control_manager_config()
+    for option, name, names in (("--controller", args.controller, config.names),
+                                ("--tracker", args.tracker, config.tracker_names)):
+        if name is not None and name not in names:
+            raise ConfigError(f"{option} {name!r} is not one of {names} "
+                              f"(models/control_manager.yaml)")
+    stack = {"schedule": [parse_switch(text, config.names)
+                          for text in args.switch_controller_at]}
+    odometry = scenario_odometry(args.estimator, args.bank, "alight fly --estimator",
+                                 anchored=False)
+    if odometry is not None:
+        stack.update(odometry=odometry, log=odometry.log)
+    return stack

@@ -1,0 +1,40 @@
+"""`alight vio-eval`: its options and what it runs (`HELP` says what it does)."""
+import argparse
+import sys
+
+from alight.diagrams.cli.options import add_common, sim_vehicle_config
+
+NAME = "vio-eval"
+HELP = ("fly waypoints with the visual-inertial odometry (in the loop or beside mocap) and "
+        "report ATE, RPE per metre and processing time; TUM files for evo")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(NAME, help=HELP, description=HELP)
+    add_common(parser)
+    parser.add_argument("--waypoints", default="0,0,2; 6,0,2; 6,6,3; 0,0,2",
+                        metavar="'X,Y,Z; ...'", help="waypoints in E [m]")
+    parser.add_argument("--camera", default="rgbd_camera.yaml",
+                        help="forward RGB-D camera YAML (source geometric or rendered)")
+    parser.add_argument("--open-loop", action="store_true", help="mocap flies, the VIO runs beside")
+    parser.set_defaults(run=run)
+    return parser
+
+
+def run(args) -> int:
+    from alight.diagrams.onboard.waypoints import parse_waypoints
+    from alight.diagrams.running.paths import default_run_dir
+    from alight.diagrams.analysis.vio import evaluate_vio
+    from alight.diagrams.onboard.vio import load_rgbd_camera_params
+    from alight.diagrams.running.flights import fly_vio
+    try:
+        waypoints = parse_waypoints(args.waypoints)
+    except ValueError as e:
+        print(f"alight vio-eval: {e}", file=sys.stderr)
+        return 2
+    run = fly_vio(sim_vehicle_config(args), waypoints, args.seed,
+                  args.run_dir or default_run_dir("vio-eval", args.seed),
+                  closed_loop=not args.open_loop, camera=load_rgbd_camera_params(args.camera))
+    for key, value in evaluate_vio(run).items():
+        print(f"{key:16s}{value:.4g}" if isinstance(value, float) else f"{key:16s}{value}")
+    return 0
