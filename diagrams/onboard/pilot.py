@@ -3,7 +3,6 @@ through take-off, hover and landing on an attitude/thrust profile (no position c
 
 
 from alight.diagrams.running.run_log import RunLoggers, add_run_logging
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig
 from alight.models import model_path
 from alight.systems.control.scripted_pilot import PilotModel, PilotProfile, ScriptedPilot
 from alight.systems.params import load_params
@@ -14,8 +13,9 @@ def load_pilot_profile(filename: str = "hover_profile.yaml") -> PilotProfile:
     return load_params(PilotProfile, model_path(filename))
 
 
-def pilot_model(config: SimVehicleConfig) -> PilotModel:
-    """The pilot's knowledge of the vehicle: mass, thrust curve and vertical drag of its model."""
+def pilot_model(config) -> PilotModel:
+    """The pilot's knowledge of the vehicle: mass, thrust curve and vertical drag of its model
+    (`config.vehicle`, the airframe file of a SimVehicleConfig)."""
     from pydrake.multibody.plant import MultibodyPlant
     from alight.systems.plant.hexacopter import add_hexacopter, airframe
     params = load_hexacopter_params(config.vehicle)
