@@ -195,6 +195,12 @@ STATE_ESTIMATE = VectorLayout("state_estimate", [
     ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
     ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)])
 
+
+def estimate_is_valid(estimate: np.ndarray) -> bool:
+    """A STATE_ESTIMATE that says it is valid and is finite (what controllers and trackers use)."""
+    return STATE_ESTIMATE.get(estimate, "valid") > 0.5 and bool(np.all(np.isfinite(estimate)))
+
+
 # `target_estimate` (DESIGN.md "The onboard stack"; L(5)-(10), (28)-(35)): the target EKF's estimate
 # predicted to `stamp` [s]: position p_WT [m], orientation q_WT (w, x, y, z) and velocity v_WT
 # [m/s] of the target frame T (landing-pattern centre, z up) in the state estimate's frame E (W of

@@ -17,16 +17,14 @@ It then commands zero thrust and arm = 0.
 import dataclasses as dc
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
 
-from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, VectorLayout
-from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
-                                                     command_is_usable, level_command,
-                                                     status_vector)
+from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, VectorLayout
+from alight.systems.control.controller import (Controller, ControllerReason, command_is_usable,
+                                               level_command, status_vector)
+from alight.systems.control.force_controller import VehicleModel
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, rotation_matrix
 from alight.systems.thrust_curve import GRAVITY
-from alight.systems.timing import ComputeTimer
 
 
 @dc.dataclass
@@ -42,35 +40,23 @@ class FailsafeParams:
 
 
 _STATE = VectorLayout("failsafe_state", [
-    ("was_active", 1), ("start", 1), ("hover_force", 1), ("heading", 1), ("mass", 1),
+    ("start", 1), ("hover_force", 1), ("heading", 1), ("mass", 1),
     ("descended", 1), ("quiet_time", 1), ("touched_down", 1), ("v_z", 1)])
 
 
-class FailsafeController(LeafSystem):
-    """Inputs  `state_estimate` STATE_ESTIMATE (only its vertical speed, when valid);
-            `reference` REFERENCE (unused: the failsafe needs none); `active` (1);
-            `last_command` FC_COMMAND
+class FailsafeController(Controller):
+    """Inputs  as `Controller`: `state_estimate` (only its vertical speed, when valid);
+            `reference` (unused: the failsafe needs none); `active`; `last_command`
     Outputs `fc_command` FC_COMMAND (attitude+thrust, level); `controller_status`;
             `desired_acceleration` (3) the vertical acceleration the thrust gives at m_e [m/s^2]
-    `compute_timer` records the wall-clock time of every active tick (alight.systems.timing).
     """
 
     def __init__(self, vehicle: VehicleModel, params: FailsafeParams, period: float = 0.01):
-        super().__init__()
-        self.compute_timer = ComputeTimer()
-        self._vehicle, self._p, self._period = vehicle, params, period
+        super().__init__(period, level_command(0.0, 0.0, 0.0, 0.0))
+        self._vehicle, self._p = vehicle, params
         self._curve = vehicle.curve
-        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
-        self.DeclareVectorInputPort("reference", REFERENCE.size)
-        self._active = self.DeclareVectorInputPort("active", 1)
-        self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
-        self._command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
-        self._status = self.DeclareDiscreteState(status_vector(ControllerReason.INACTIVE))
         self._acceleration = self.DeclareDiscreteState(3)
         self._state = self.DeclareDiscreteState(np.zeros(_STATE.size))
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self.DeclareStateOutputPort("fc_command", self._command)
-        self.DeclareStateOutputPort("controller_status", self._status)
         self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
 
     def last_mass(self, last_command: np.ndarray) -> float:
@@ -82,31 +68,23 @@ class FailsafeController(LeafSystem):
         apparent = float(self._curve.apparent_mass(FC_COMMAND.get(last_command, "thrust")))
         return float(np.clip(apparent * tilt_cos, lo, hi))
 
-    def _update(self, context, discrete_state):
-        x = context.get_discrete_state(self._state).get_value().copy()
-        if self._active.Eval(context)[0] < 0.5:
-            x[_STATE.slice("was_active")] = 0.0
-            discrete_state.set_value(self._state, x)
-            discrete_state.set_value(self._status, status_vector(ControllerReason.INACTIVE))
-            return
-        with self.compute_timer.measure(context.get_time()):
-            self._active_tick(context, discrete_state, x)
+    def _activate(self, context, discrete_state, last, estimate) -> None:
+        """The mass and the heading of the last command; on the ground when it was not flying."""
+        mass = self.last_mass(last)
+        flying = command_is_usable(last) and FC_COMMAND.get(last, "arm") > 0.5 \
+            and FC_COMMAND.get(last, "thrust") > 0.0
+        eta = heading(rotation_matrix(FC_COMMAND.get(last, "q_WD"))) \
+            if command_is_usable(last) else 0.0
+        discrete_state.set_value(self._state, _STATE.pack(
+            start=context.get_time(), hover_force=mass * GRAVITY, heading=eta, mass=mass,
+            descended=0.0, quiet_time=0.0, touched_down=0.0 if flying else 1.0, v_z=0.0))
 
-    def _active_tick(self, context, discrete_state, x: np.ndarray) -> None:
+    def _update_active(self, context, discrete_state, estimate) -> None:
         now = context.get_time()
         S = _STATE
-        if x[S.slice("was_active")][0] < 0.5:
-            last = self._last.Eval(context)
-            mass = self.last_mass(last)
-            flying = command_is_usable(last) and FC_COMMAND.get(last, "arm") > 0.5 \
-                and FC_COMMAND.get(last, "thrust") > 0.0
-            eta = heading(rotation_matrix(FC_COMMAND.get(last, "q_WD"))) \
-                if command_is_usable(last) else 0.0
-            x[:] = S.pack(was_active=1.0, start=now, hover_force=mass * GRAVITY, heading=eta,
-                          mass=mass, descended=0.0, quiet_time=0.0,
-                          touched_down=0.0 if flying else 1.0, v_z=0.0)
+        x = discrete_state.get_value(self._state).copy()   # as `_activate` may have left it
         if x[S.slice("touched_down")][0] < 0.5:
-            self._detect_touchdown(x, self._estimate.Eval(context), now)
+            self._detect_touchdown(x, estimate, now)
         touched_down = x[S.slice("touched_down")][0] > 0.5
         if touched_down:
             force, arm = 0.0, 0.0
@@ -123,12 +101,13 @@ class FailsafeController(LeafSystem):
         discrete_state.set_value(self._status, status_vector(
             ControllerReason.TOUCHDOWN if touched_down else ControllerReason.OK))
 
-    def _detect_touchdown(self, x: np.ndarray, estimate: np.ndarray, now: float) -> None:
+    def _detect_touchdown(self, x: np.ndarray, estimate, now: float) -> None:
+        """`estimate`: None when it is not valid."""
         S = _STATE
         if now - x[S.slice("start")][0] > self._p.max_descent_time:
             x[S.slice("touched_down")] = 1.0
             return
-        if STATE_ESTIMATE.get(estimate, "valid") < 0.5 or not np.all(np.isfinite(estimate)):
+        if estimate is None:
             return
         alpha = min(1.0, self._period / max(self._p.speed_filter_time, 1e-9))
         v_z = x[S.slice("v_z")][0] + alpha * (STATE_ESTIMATE.get(estimate, "v_EB")[2]

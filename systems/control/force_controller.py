@@ -13,7 +13,7 @@ normalized thrust T_d. They publish the unbiased desired acceleration M(53)
 
 (printed M(53) divides g by m_e too; this is the dimensionally consistent form).
 
-The controller contract of alight.systems.boundary: only the active controller computes; on
+The controller role (alight.systems.control.controller): only the active controller computes; on
 activation it starts from `last_command` (M Sec. 7.2): its thrust is the start of a thrust ramp
 (rate `thrust_ramp_rate`) toward the computed thrust, so the hand-over (or the take-off from the
 ground, where the last command is zero thrust) has no thrust step; when the last command was
@@ -41,41 +41,24 @@ non-finite result) outputs a finite, level attitude+thrust hover command and rep
 `controller_status`, for the control manager to fall back.
 """
 import dataclasses as dc
-import enum
 
 import numpy as np
 from pydrake.math import RotationMatrix
-from pydrake.systems.framework import LeafSystem
 
-from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
-                                     STATE_ESTIMATE,
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
                                      CommandMode, VectorLayout)
 from alight.systems.control import disturbance
+from alight.systems.control.controller import (VALID_REASONS, Controller, ControllerReason,
+                                               command_is_usable, level_command, status_vector)
 from alight.systems.control.disturbance import (DISTURBANCE, DISTURBANCE_ESTIMATE,
                                                 DisturbanceGains, DisturbanceLimits)
 from alight.systems.control.so3 import (E3, So3Params, body_rate_command, desired_orientation,
                                         jerk_feedforward, limit_tilt)
 from alight.systems.estimation.heading import with_heading, wrap_angle
 from alight.systems.params import bounded
-from alight.systems.rotations import (heading, heading_quaternion, quaternion_from_rotation_vector,
-                                      quaternion_product, rotation_matrix)
+from alight.systems.rotations import (heading, quaternion_from_rotation_vector, quaternion_product,
+                                      rotation_matrix)
 from alight.systems.thrust_curve import GRAVITY, ThrustCurve
-from alight.systems.timing import ComputeTimer
-
-
-class ControllerReason(enum.IntEnum):
-    """`controller_status.reason` of the flight-stack controllers."""
-    OK = 0
-    INACTIVE = 1
-    BAD_ESTIMATE = 2      # estimate invalid or not finite
-    BAD_REFERENCE = 3     # reference not finite
-    SOLVER_FALLBACK = 4   # the QP failed; the previous solution is used (still valid)
-    SOLVER_FAILED = 5     # the QP failed for too long
-    NOT_FINITE = 6        # the computation gave a non-finite command
-    TOUCHDOWN = 7         # failsafe: on the ground, disarming
-
-
-VALID_REASONS = (ControllerReason.OK, ControllerReason.SOLVER_FALLBACK, ControllerReason.TOUCHDOWN)
 
 
 @dc.dataclass
@@ -91,25 +74,6 @@ class VehicleModel:
         return ThrustCurve(self.a_t, self.b_t)
 
 
-def status_vector(reason: ControllerReason, solver_status: float = 0.0) -> np.ndarray:
-    return CONTROLLER_STATUS.pack(valid=float(reason in VALID_REASONS), reason=float(reason),
-                                  solver_status=solver_status)
-
-
-def level_command(stamp: float, eta: float, thrust: float, arm: float) -> np.ndarray:
-    """Level attitude at heading `eta` with `thrust`: the safe command of a tick that cannot
-    compute, and the failsafe's command (M Sec. 5.10)."""
-    return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
-                           q_WD=heading_quaternion(eta), w_D=np.zeros(3),
-                           thrust=float(np.clip(thrust, 0.0, 1.0)), arm=arm)
-
-
-def command_is_usable(command: np.ndarray) -> bool:
-    """A finite FC_COMMAND with thrust in [0, 1] (what a controller may start from)."""
-    return bool(np.all(np.isfinite(command))
-                and 0.0 <= FC_COMMAND.get(command, "thrust") <= 1.0)
-
-
 def advance_reference(reference: np.ndarray, dt: float) -> np.ndarray:
     """REFERENCE chi advanced by `dt` [s] along its derivatives (constant jerk, constant heading
     rate), stamped `dt` later."""
@@ -123,51 +87,37 @@ def advance_reference(reference: np.ndarray, dt: float) -> np.ndarray:
 
 
 _INTERNAL = VectorLayout("force_controller_state", [
-    ("was_active", 1), ("ramping", 1), ("ramp_thrust", 1), ("frame_counter", 1),
-    ("disturbance", DISTURBANCE.size)])
+    ("ramping", 1), ("ramp_thrust", 1), ("disturbance", DISTURBANCE.size)])
 
 
-class ForceController(LeafSystem):
+class ForceController(Controller):
     """Base of the SE(3) and MPC force-feedback controllers (M(38), M(39)); see the module
     docstring. Subclasses implement `_feedback_acceleration`.
 
-    Inputs  `state_estimate` STATE_ESTIMATE (frame E, z up); `reference` REFERENCE (chi, M(16));
-            `active` (1); `last_command` FC_COMMAND (the command last issued by any controller);
+    Inputs  as `Controller` (`state_estimate`, `reference`, `active`, `last_command`);
             `last_disturbance` DISTURBANCE_ESTIMATE (optional: the previous controller's);
             `fc_attitude` FC_ATTITUDE (optional: the flight controller's attitude, M footnote 18)
     Outputs `fc_command` FC_COMMAND (body rates + thrust); `controller_status` CONTROLLER_STATUS;
             `desired_acceleration` (3) the unbiased desired acceleration M(53) [m/s^2, in E];
             `disturbance_estimate` DISTURBANCE_ESTIMATE (d_w, d_b [N, in E], m_e [kg])
-    All outputs are state, updated every `period` (100 Hz by default); `compute_timer` records
-    the wall-clock time of every active tick (alight.systems.timing).
+    All outputs are state, updated every `period` (100 Hz by default).
     """
 
     def __init__(self, vehicle: VehicleModel, so3: So3Params, gains: DisturbanceGains,
                  limits: DisturbanceLimits, period: float, extra_state=None,
                  max_prediction: float = 0.1):
-        super().__init__()
-        self.compute_timer = ComputeTimer()
+        super().__init__(period, level_command(0.0, 0.0, 0.0, 0.0))
         self._max_prediction = max_prediction
         self._vehicle, self._so3, self._gains, self._limits = vehicle, so3, gains, limits
         self._curve = vehicle.curve
-        self._period = period
-        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
-        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
-        self._active = self.DeclareVectorInputPort("active", 1)
-        self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
         self._fc_attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._last_disturbance = self.DeclareVectorInputPort("last_disturbance",
                                                              DISTURBANCE_ESTIMATE.size)
-        self._command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
-        self._status = self.DeclareDiscreteState(status_vector(ControllerReason.INACTIVE))
         self._acceleration = self.DeclareDiscreteState(3)
         self._estimates = self.DeclareDiscreteState(DISTURBANCE_ESTIMATE.pack(
             d_w=np.zeros(2), d_b=np.zeros(2), m_e=vehicle.mass))
         self._internal = self.DeclareDiscreteState(np.zeros(_INTERNAL.size))
         self._extra = None if extra_state is None else self.DeclareDiscreteState(extra_state)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self.DeclareStateOutputPort("fc_command", self._command)
-        self.DeclareStateOutputPort("controller_status", self._status)
         self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
         self.DeclareStateOutputPort("disturbance_estimate", self._estimates)
 
@@ -182,46 +132,27 @@ class ForceController(LeafSystem):
         """The integrator gains of M(35)-(37) for this tick (the SE(3) gain group may switch)."""
         return self._gains
 
-    def _on_activation(self, context, discrete_state) -> None:
-        """Resets the subclass's own state when the controller becomes active."""
+    # --- the role's hooks (alight.systems.control.controller) ----------------------------------
 
-    def _on_frame_change(self, context, discrete_state, R_OldNew: np.ndarray) -> None:
-        """Re-expresses the subclass's own state in the new estimator frame."""
-
-    # --- the tick -----------------------------------------------------------------------------
-
-    def _update(self, context, discrete_state):
-        x = context.get_discrete_state(self._internal).get_value().copy()
-        if self._active.Eval(context)[0] < 0.5:
-            x[_INTERNAL.slice("was_active")] = 0.0
-            discrete_state.set_value(self._internal, x)
-            discrete_state.set_value(self._status, status_vector(ControllerReason.INACTIVE))
-            return
-        with self.compute_timer.measure(context.get_time()):
-            self._active_tick(context, discrete_state, x)
-
-    def _active_tick(self, context, discrete_state, x) -> None:
-        estimate = self._estimate.Eval(context)
+    def _update_active(self, context, discrete_state, estimate) -> None:
+        x = discrete_state.get_value(self._internal).copy()   # as `_activate` may have left it
         reference = self._reference.Eval(context)
-        estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 \
-            and bool(np.all(np.isfinite(estimate)))
-        if x[_INTERNAL.slice("was_active")][0] < 0.5:
-            self._activate(context, discrete_state, x, estimate if estimate_ok else None)
-        if not estimate_ok:
+        if estimate is None:
             return self._hold(context, discrete_state, x, ControllerReason.BAD_ESTIMATE)
         if not np.all(np.isfinite(reference)):
             return self._hold(context, discrete_state, x, ControllerReason.BAD_REFERENCE)
-        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
-        if counter != x[_INTERNAL.slice("frame_counter")][0]:
-            R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
-            x[_INTERNAL.slice("disturbance")] = disturbance.reexpress(
-                x[_INTERNAL.slice("disturbance")], R_OldNew)
-            x[_INTERNAL.slice("frame_counter")] = counter
-            self._on_frame_change(context, discrete_state, R_OldNew)
         self._compute(context, discrete_state, x, estimate, reference)
 
-    def _activate(self, context, discrete_state, x, estimate) -> None:
-        last = self._last.Eval(context)
+    def _switch_frame(self, context, discrete_state, R_OldNew, p_OldNew) -> None:
+        """The disturbance integrators, M(35)-(36), in the new frame."""
+        x = discrete_state.get_value(self._internal).copy()
+        x[_INTERNAL.slice("disturbance")] = disturbance.reexpress(
+            x[_INTERNAL.slice("disturbance")], R_OldNew)
+        discrete_state.set_value(self._internal, x)
+
+    def _activate(self, context, discrete_state, last, estimate) -> None:
+        """The thrust ramp from the last command's thrust; the mass estimate from its apparent
+        mass M(34); the integrators from `last_disturbance` when connected."""
         usable = command_is_usable(last)
         armed = usable and FC_COMMAND.get(last, "arm") > 0.5
         thrust = float(FC_COMMAND.get(last, "thrust")) if armed else 0.0
@@ -237,13 +168,8 @@ class ForceController(LeafSystem):
                 self._last_disturbance.Eval(context), self._vehicle.mass,
                 STATE_ESTIMATE.get(estimate, "heading"), self._limits)
             state = state if handed is None else handed
-        x[_INTERNAL.slice("was_active")] = 1.0
-        x[_INTERNAL.slice("ramping")] = 1.0
-        x[_INTERNAL.slice("ramp_thrust")] = thrust
-        x[_INTERNAL.slice("disturbance")] = state
-        if estimate is not None:
-            x[_INTERNAL.slice("frame_counter")] = STATE_ESTIMATE.get(estimate, "frame_counter")
-        self._on_activation(context, discrete_state)
+        discrete_state.set_value(self._internal, _INTERNAL.pack(ramping=1.0, ramp_thrust=thrust,
+                                                                disturbance=state))
 
     def _compute(self, context, discrete_state, x, estimate, reference) -> None:
         now = context.get_time()
@@ -341,7 +267,3 @@ class ForceController(LeafSystem):
         discrete_state.set_value(self._acceleration, np.zeros(3))
         discrete_state.set_value(self._internal, x)
         discrete_state.set_value(self._status, status_vector(reason, solver_status))
-
-    @property
-    def period(self) -> float:
-        return self._period

@@ -25,10 +25,10 @@ import enum
 import numpy as np
 from pydrake.math import RollPitchYaw
 from pydrake.solvers import MathematicalProgram, OsqpSolver, SolverOptions
-from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
                                      STATE_ESTIMATE, CommandMode, VectorLayout)
+from alight.systems.control.controller import Controller
 from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
                                                  LinearModelParams, continuous_model, discretize,
                                                  model_state, rotate_to_navigation)
@@ -37,7 +37,6 @@ from alight.systems.params import bounded, choice
 from alight.systems.rotations import heading_quaternion, quaternion_product, rotation_matrix
 from alight.systems.rotations import heading as heading_of_matrix
 from alight.systems.thrust_curve import ThrustCurve
-from alight.systems.timing import ComputeTimer
 
 
 def heading_of(q: np.ndarray) -> float:
@@ -208,40 +207,28 @@ class LinearMpcQp:
         return result.x[self._s_index]
 
 
-# Unrestricted state: fc_command, controller_status, previous solution, consecutive failures.
-class LinearMpc(LeafSystem):
-    """Inputs  `state_estimate` STATE_ESTIMATE (position, velocity, heading); `reference` REFERENCE
-            (position, velocity, heading); `active` (1); `last_command` FC_COMMAND;
-            `fc_attitude` FC_ATTITUDE (pitch, roll and body rates for L(17))
+class LinearMpc(Controller):
+    """Inputs  as `Controller`: `state_estimate` (position, velocity, heading); `reference`
+            (position, velocity, heading); `active`; `last_command`; and `fc_attitude`
+            FC_ATTITUDE (pitch, roll and body rates for L(17))
     Outputs `fc_command` FC_COMMAND (attitude+thrust), `controller_status` CONTROLLER_STATUS,
             `prediction` (N x 3 inputs of the last solution, flattened),
             `disturbance` (3) the estimated acceleration disturbance d_W [m/s^2] (zero when off)
-    `compute_timer` records the wall-clock time of every active tick (alight.systems.timing).
+    Own state: the previous solution, the consecutive failures, the disturbance estimate.
     """
 
     def __init__(self, model: LinearModelParams, params: LinearMpcParams):
-        super().__init__()
-        self.compute_timer = ComputeTimer()
         self._model, self._p = model, params
-        self._qp = LinearMpcQp(model, params)
         self._curve = ThrustCurve(model.thrust_a, model.thrust_b)
+        super().__init__(params.period, self._hover_command(0.0, 0.0))
+        self._qp = LinearMpcQp(model, params)
         N = params.horizon_steps
-        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
-        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
-        self._active = self.DeclareVectorInputPort("active", 1)
-        self._last = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
-        self._command = self.DeclareDiscreteState(self._hover_command(0.0, 0.0))
-        self._status = self.DeclareDiscreteState(CONTROLLER_STATUS.pack(
-            valid=0.0, reason=MpcReason.INACTIVE, solver_status=0.0))
         self._solution = self.DeclareDiscreteState(np.full(N * NUM_INPUTS, np.nan))
         self._failures = self.DeclareDiscreteState(1)
         # [d_W (3), velocity predicted for this tick in W (3), NaN: none]
         self._disturbance = self.DeclareDiscreteState(np.concatenate([np.zeros(3),
                                                                       np.full(3, np.nan)]))
-        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
-        self.DeclareStateOutputPort("fc_command", self._command)
-        self.DeclareStateOutputPort("controller_status", self._status)
         self.DeclareStateOutputPort("prediction", self._solution)
         self.DeclareVectorOutputPort(
             "disturbance", 3, lambda context, out: out.SetFromVector(
@@ -276,24 +263,18 @@ class LinearMpc(LeafSystem):
         s_y[:, 6:8] = hold[:2]
         return s_y.ravel(), np.tile(hold, N)
 
-    def _update(self, context, discrete_state):
-        now = context.get_time()
-        estimate = self._estimate.Eval(context)
-        reference = self._reference.Eval(context)
-        if self._active.Eval(context)[0] < 0.5:
-            discrete_state.set_value(self._command, self._last.Eval(context))
-            discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
-                valid=0.0, reason=MpcReason.INACTIVE, solver_status=0.0))
-            discrete_state.set_value(self._failures, [0.0])
-            self._forget_prediction(context, discrete_state)
-            return
-        with self.compute_timer.measure(now):
-            self._active_tick(context, discrete_state, now, estimate, reference)
+    def _update_inactive(self, context, discrete_state):
+        """Follows the issued command; no failures, no prediction to compare with."""
+        super()._update_inactive(context, discrete_state)
+        discrete_state.set_value(self._command, self._last.Eval(context))
+        discrete_state.set_value(self._failures, [0.0])
+        self._forget_prediction(context, discrete_state)
 
-    def _active_tick(self, context, discrete_state, now, estimate, reference) -> None:
+    def _update_active(self, context, discrete_state, estimate) -> None:
+        now = context.get_time()
+        reference = self._reference.Eval(context)
         heading = float(REFERENCE.get(reference, "heading"))
-        if STATE_ESTIMATE.get(estimate, "valid") < 0.5 or not np.all(np.isfinite(estimate)) \
-                or not np.all(np.isfinite(reference)):
+        if estimate is None or not np.all(np.isfinite(reference)):
             self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0)
             return
         # Position and velocity from odometry; attitude and rates from the flight controller's

@@ -37,8 +37,9 @@ import dataclasses as dc
 import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, OsqpSolver, SolverOptions
 
+from alight.systems.control.controller import ControllerReason
 from alight.systems.control.disturbance import DisturbanceGains, DisturbanceLimits
-from alight.systems.control.force_controller import ControllerReason, ForceController, VehicleModel
+from alight.systems.control.force_controller import ForceController, VehicleModel
 from alight.systems.control.so3 import So3Params
 from alight.systems.params import bounded, choice
 
@@ -190,7 +191,7 @@ class MpcForceController(ForceController):
         self.qp = MpcForceQp(params, period)
 
     def _feedback_acceleration(self, context, discrete_state, e_p, e_v, reference):
-        extra = discrete_state.get_value(self._extra).copy()  # as _on_activation left it
+        extra = discrete_state.get_value(self._extra).copy()  # as _activate left it
         u_prev, failures = extra[:3], extra[3]
         ok, u, status = self.qp.solve(self.qp.initial_state(e_p, e_v, u_prev), u_prev)
         if ok:
@@ -202,10 +203,12 @@ class MpcForceController(ForceController):
             else ControllerReason.SOLVER_FAILED
         return u_prev.copy(), reason, float(status)
 
-    def _on_activation(self, context, discrete_state):
+    def _activate(self, context, discrete_state, last, estimate):
+        super()._activate(context, discrete_state, last, estimate)
         discrete_state.set_value(self._extra, np.zeros(4))
 
-    def _on_frame_change(self, context, discrete_state, R_OldNew):
+    def _switch_frame(self, context, discrete_state, R_OldNew, p_OldNew):
+        super()._switch_frame(context, discrete_state, R_OldNew, p_OldNew)
         extra = discrete_state.get_value(self._extra).copy()
         extra[:3] = R_OldNew.T @ extra[:3]
         discrete_state.set_value(self._extra, extra)

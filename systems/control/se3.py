@@ -14,7 +14,8 @@ import dataclasses as dc
 import numpy as np
 
 from alight.systems.control.disturbance import DisturbanceGains, DisturbanceLimits
-from alight.systems.control.force_controller import ControllerReason, ForceController, VehicleModel
+from alight.systems.control.controller import ControllerReason
+from alight.systems.control.force_controller import ForceController, VehicleModel
 from alight.systems.control.so3 import So3Params
 from alight.systems.params import bounded, choice
 

@@ -34,6 +34,18 @@ def reexpress_point(p, R_OldNew: np.ndarray, p_OldNew: np.ndarray) -> np.ndarray
     return rows
 
 
+def frame_switch(estimate: np.ndarray, frame_counter: float
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(R_OldNew, p_OldNew) when the STATE_ESTIMATE `estimate` is in another estimator frame than
+    the one of `frame_counter` (the arbiter switched, M Sec. 3.5); None in the same frame or
+    when `frame_counter` is NaN (no frame yet)."""
+    counter = STATE_ESTIMATE.get(estimate, "frame_counter")
+    if not np.isfinite(frame_counter) or counter == frame_counter:
+        return None
+    return (rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew")),
+            STATE_ESTIMATE.get(estimate, "p_OldNew"))
+
+
 def reexpress(estimate: np.ndarray, p_AE, q_AE) -> np.ndarray:
     """A STATE_ESTIMATE in frame E expressed in frame A (frame fields left as they are)."""
     L = STATE_ESTIMATE

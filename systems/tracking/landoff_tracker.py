@@ -147,16 +147,15 @@ class AxisProfile:
 
 
 class LandoffTracker(ChiTracker):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` LandoffGoal (abstract; None: hold);
-            `active` (1); `last_reference` REFERENCE; `last_command` FC_COMMAND (optional: the
-            command last issued, for touchdown detection)
+    """Inputs  as `Tracker`, with `goal` a LandoffGoal (None: hold); `last_command` FC_COMMAND
+            (optional: the command last issued, for touchdown detection)
     Outputs `reference` REFERENCE (chi of M(16) in E, stamped one period ahead);
             `tracker_status` TRACKER_STATUS (reason: ChiReason); `landed` (1): touchdown
     """
 
     def __init__(self, params: LandoffTrackerParams, vehicle: VehicleModel):
         params.profile.check(params.period)
-        super().__init__(params.period, LandoffMemory(), LandoffGoal)
+        super().__init__(params.period, LandoffMemory(), LandoffGoal.land())
         self.params, self._vehicle = params, vehicle
         self._profile = AxisProfile(params.profile)
         self._command = self.DeclareVectorInputPort("last_command", FC_COMMAND.size)
@@ -180,7 +179,8 @@ class LandoffTracker(ChiTracker):
             memory.phase = Phase.LANDING
         return ChiReason.OK
 
-    def _reexpress(self, memory: LandoffMemory, R_OldNew, p_OldNew) -> None:
+    def _switch_frame(self, memory: LandoffMemory, R_OldNew, p_OldNew) -> None:
+        super()._switch_frame(memory, R_OldNew, p_OldNew)
         memory.target = reexpress_point(memory.target, R_OldNew, p_OldNew)
 
     def _step(self, context, memory: LandoffMemory, estimate) -> ChiReason:

@@ -19,18 +19,16 @@ import dataclasses as dc
 import enum
 
 import numpy as np
-from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem
 
 from alight.models import model_path
-from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE
 from alight.systems.params import ConfigError, bounded, load_params
-from alight.systems.rotations import heading, rotation_matrix
-from alight.systems.timing import ComputeTimer
+from alight.systems.rotations import heading
 from alight.systems.tracking.axis_mpc import (ORDER, AxisLimits, AxisMpc, AxisMpcParams, chain,
                                               horizontal_factors)
 from alight.systems.tracking.constraints import ConstraintGroups, load_constraint_groups
 from alight.systems.tracking.goal import TrackerGoal
+from alight.systems.tracking.tracker import Tracker, TrackerMemory, tracker_status
 
 AXES = 4          # x, y, z, heading
 
@@ -47,7 +45,7 @@ class MpcTrackerParams:
 
 
 class TrackerReason(enum.IntEnum):
-    """`tracker_status.reason`."""
+    """`tracker_status.reason` (INACTIVE and BAD_START: tracker.py's)."""
     OK = 0
     INACTIVE = 1
     NO_GOAL = 2          # active without a goal: holds the goal of the start (the start state)
@@ -56,7 +54,7 @@ class TrackerReason(enum.IntEnum):
 
 
 @dc.dataclass
-class TrackerMemory:
+class MpcTrackerMemory(TrackerMemory):
     """Abstract state: the virtual vehicle x (axes x derivatives p, v, a, j), each axis' plan
     (snaps, planned positions, ticks since its solve), the goal held without one, bookkeeping."""
     x: np.ndarray
@@ -66,21 +64,18 @@ class TrackerMemory:
     hold: np.ndarray         # (4,) the goal [x, y, z, heading] used when none is given
     direction: np.ndarray    # (2,) last horizontal direction
     group: str = ""          # the constraint group of the last plans
-    active: bool = False
-    frame_counter: float = np.nan
     ticks: int = 0
 
     @staticmethod
-    def empty(N: int) -> "TrackerMemory":
-        return TrackerMemory(np.zeros((AXES, ORDER)), np.zeros((AXES, N)),
+    def empty(N: int) -> "MpcTrackerMemory":
+        return MpcTrackerMemory(np.zeros((AXES, ORDER)), np.zeros((AXES, N)),
                              np.zeros((AXES, N + 1)), np.zeros(AXES, int), np.zeros(4),
                              np.array([1.0, 1.0]) / np.sqrt(2))
 
 
-class MpcTracker(LeafSystem):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` TrackerGoal (abstract; None: hold);
-            `active` (1); `last_reference` REFERENCE; `constraint_group` (1, optional: index
-            into `group_names`; unconnected: the default group)
+class MpcTracker(Tracker):
+    """Inputs  as `Tracker`, with `goal` a TrackerGoal (None: hold); `constraint_group` (1,
+            optional: index into `group_names`; unconnected: the default group)
     Outputs `reference` REFERENCE (chi of M(16) in E, stamped one period ahead),
             `tracker_status` TRACKER_STATUS
     On activation the virtual vehicle starts from `last_reference` when it is finite (M Sec. 7.2),
@@ -89,8 +84,8 @@ class MpcTracker(LeafSystem):
     """
 
     def __init__(self, params: MpcTrackerParams, groups: ConstraintGroups):
-        super().__init__()
-        self.compute_timer = ComputeTimer()
+        super().__init__(params.period, MpcTrackerMemory.empty(params.axis.horizon),
+                         TrackerGoal.point(np.zeros(3)))
         ratio = params.axis.step / params.period
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < AXES:
             raise ConfigError(f"mpc tracker: axis.step {params.axis.step} s must be a whole "
@@ -104,20 +99,7 @@ class MpcTracker(LeafSystem):
         self.qps = [AxisMpc(params.axis) for _ in range(AXES)]
         A, B = chain(params.period)
         self._A, self._B = A, B[:, 0]
-        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
-        self._goal = self.DeclareAbstractInputPort("goal", AbstractValue.Make(None))
-        self._active = self.DeclareVectorInputPort("active", 1)
-        self._last = self.DeclareVectorInputPort("last_reference", REFERENCE.size)
         self._group = self.DeclareVectorInputPort("constraint_group", 1)
-        self._memory = self.DeclareAbstractState(AbstractValue.Make(TrackerMemory.empty(self.N)))
-        self._reference = self.DeclareDiscreteState(np.full(REFERENCE.size, np.nan))
-        self._status = self.DeclareDiscreteState(TRACKER_STATUS.pack(
-            valid=0.0, reason=TrackerReason.INACTIVE, solver_status=0.0))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
-        self.DeclareVectorOutputPort(
-            "reference", REFERENCE.size, self._calc_reference,
-            {self.all_state_ticket(), self.input_port_ticket(self._estimate.get_index())})
-        self.DeclareStateOutputPort("tracker_status", self._status)
 
     def _group_name(self, context) -> str:
         name = self.params.constraints
@@ -127,58 +109,45 @@ class MpcTracker(LeafSystem):
                 name = self.group_names[int(index)]
         return name
 
-    def _calc_reference(self, context, output):
-        reference = context.get_discrete_state(self._reference).get_value()
-        if np.all(np.isfinite(reference)):
-            return output.SetFromVector(reference)
-        estimate = self._estimate.Eval(context)   # never computed: hold the estimate
-        output.SetFromVector(REFERENCE.pack(
-            stamp=context.get_time(), p=STATE_ESTIMATE.get(estimate, "p_EB"), v=0.0, a=0.0,
-            j=0.0, heading=STATE_ESTIMATE.get(estimate, "heading"), heading_rate=0.0))
+    # --- the role's hooks (alight.systems.tracking.tracker) -----------------------------------
 
-    def _start(self, context, memory: TrackerMemory) -> bool:
-        last = self._last.Eval(context)
+    def _activate(self, context, memory: MpcTrackerMemory, last_reference, estimate) -> None:
+        """The virtual vehicle at `last_reference`, else at rest at the estimate."""
         x = np.zeros((AXES, ORDER))
-        if np.all(np.isfinite(last)):
-            x[:3] = np.column_stack([REFERENCE.get(last, f) for f in ("p", "v", "a", "j")])
-            x[3, :2] = REFERENCE.get(last, "heading"), REFERENCE.get(last, "heading_rate")
+        if last_reference is not None:
+            x[:3] = np.column_stack([REFERENCE.get(last_reference, f)
+                                     for f in ("p", "v", "a", "j")])
+            x[3, :2] = (REFERENCE.get(last_reference, "heading"),
+                        REFERENCE.get(last_reference, "heading_rate"))
         else:
-            estimate = self._estimate.Eval(context)
-            if STATE_ESTIMATE.get(estimate, "valid") < 0.5 or not np.all(np.isfinite(estimate)):
-                return False
             x[:3, 0] = STATE_ESTIMATE.get(estimate, "p_EB")
             x[3, 0] = STATE_ESTIMATE.get(estimate, "heading")
         memory.x, memory.hold = x, x[:, 0].copy()
         memory.snaps[:], memory.planned[:] = 0.0, x[:, :1]
         memory.age[:] = 0
-        memory.active, memory.ticks = True, 0
-        return True
+        memory.ticks = 0
 
-    def _update(self, context, state):
-        memory = state.get_mutable_abstract_state(int(self._memory)).get_value()
-        if self._active.Eval(context)[0] < 0.5:
-            memory.active = False
-            state.get_mutable_discrete_state(int(self._reference)).SetFromVector(
-                self._last.Eval(context))
-            return self._set_status(state, 0.0, TrackerReason.INACTIVE, 0)
-        estimate = self._estimate.Eval(context)
-        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
-        started = False
-        if not memory.active:
-            if not self._start(context, memory):
-                return self._set_status(state, 0.0, TrackerReason.BAD_START, 0)
-            started = True
-        elif np.isfinite(memory.frame_counter) and np.isfinite(counter) \
-                and counter != memory.frame_counter:
-            reexpress(memory, rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew")),
-                      STATE_ESTIMATE.get(estimate, "p_OldNew"))
-        memory.frame_counter = counter
-        goal = self._goal.Eval(context)
+    def _switch_frame(self, memory: MpcTrackerMemory, R_OldNew, p_OldNew) -> None:
+        """The virtual vehicle and its plans: positions p_new = R^T (p_old - p_OldNew),
+        derivatives and snaps rotated, heading minus the yaw."""
+        x = memory.x
+        x[:3] = R_OldNew.T @ x[:3]
+        x[:3, 0] -= R_OldNew.T @ p_OldNew
+        memory.snaps[:3] = R_OldNew.T @ memory.snaps[:3]
+        memory.planned[:3] = R_OldNew.T @ (memory.planned[:3] - p_OldNew[:, None])
+        yaw = heading(R_OldNew)
+        x[3, 0] -= yaw
+        memory.planned[3] -= yaw
+        memory.hold[:3] = R_OldNew.T @ (memory.hold[:3] - p_OldNew)
+        memory.hold[3] -= yaw
+        memory.direction = (R_OldNew.T @ np.append(memory.direction, 0.0))[:2]
+
+    def _update_active(self, context, memory: MpcTrackerMemory, goal, estimate):
         reason = TrackerReason.OK if goal is not None else TrackerReason.NO_GOAL
         group = self._group_name(context)
         switched, memory.group = group != memory.group, group   # a new group: all re-plan now
-        due = range(AXES) if started or switched else [a for a in range(AXES)
-                                                       if memory.ticks % self.every == a]
+        due = range(AXES) if not memory.active or switched else [
+            a for a in range(AXES) if memory.ticks % self.every == a]
         now = context.get_time()
         solver_status = 0
         with self.compute_timer.measure(now):
@@ -187,20 +156,13 @@ class MpcTracker(LeafSystem):
                 reason = reason if ok else TrackerReason.SOLVER_FAILED
         self._advance(memory)
         x = memory.x
-        state.get_mutable_discrete_state(int(self._reference)).SetFromVector(REFERENCE.pack(
+        reference = REFERENCE.pack(
             stamp=now + self.params.period, p=x[:3, 0], v=x[:3, 1], a=x[:3, 2], j=x[:3, 3],
-            heading=float(np.angle(np.exp(1j * x[3, 0]))), heading_rate=x[3, 1]))
-        self._set_status(state, 1.0, reason, solver_status)
+            heading=float(np.angle(np.exp(1j * x[3, 0]))), heading_rate=x[3, 1])
+        return reference, tracker_status(1.0, reason, solver_status)
 
-    def _set_status(self, state, valid, reason, solver_status):
-        state.get_mutable_discrete_state(int(self._status)).SetFromVector(TRACKER_STATUS.pack(
-            valid=valid, reason=reason, solver_status=solver_status))
-
-    def _goal_rows(self, memory: TrackerMemory, goal, now: float) -> np.ndarray:
+    def _goal_rows(self, memory: MpcTrackerMemory, goal, now: float) -> np.ndarray:
         """(4 axes, 2, N): goal positions and velocities at the horizon's times."""
-        if goal is not None and not isinstance(goal, TrackerGoal):
-            raise TypeError(f"mpc tracker: the goal must be a TrackerGoal or None, got "
-                            f"{type(goal).__name__}")
         rows = goal.sample(now + self.times) if goal is not None \
             else np.tile(memory.hold, (self.N, 1))
         rows[:, 3] += 2 * np.pi * np.round((memory.x[3, 0] - rows[0, 3]) / (2 * np.pi))
@@ -208,7 +170,7 @@ class MpcTracker(LeafSystem):
             and len(goal.samples) > 1 else np.zeros_like(rows)
         return np.stack([rows.T, velocities.T], axis=1)
 
-    def _replan(self, memory: TrackerMemory, axes: list[int], goal, context):
+    def _replan(self, memory: MpcTrackerMemory, axes: list[int], goal, context):
         group = self.groups.group(memory.group)
         rows = self._goal_rows(memory, goal, context.get_time())
         limits = self._limits(memory, group, rows)
@@ -228,7 +190,7 @@ class MpcTracker(LeafSystem):
                 ok = False
         return ok, status
 
-    def _limits(self, memory: TrackerMemory, group, rows: np.ndarray) -> list[AxisLimits]:
+    def _limits(self, memory: MpcTrackerMemory, group, rows: np.ndarray) -> list[AxisLimits]:
         """Per-axis bounds (M Sec. 7.5): horizontal shares, ascent/descent, heading."""
         h = group.horizontal.as_array()
         planned = np.array([self._planned_positions(memory, a) for a in range(2)]).T
@@ -244,13 +206,13 @@ class MpcTracker(LeafSystem):
         eta = group.heading.as_array()[:, None]
         return horizontal + [vertical, AxisLimits(eta, eta)]
 
-    def _planned_positions(self, memory: TrackerMemory, a: int) -> np.ndarray:
+    def _planned_positions(self, memory: MpcTrackerMemory, a: int) -> np.ndarray:
         """Axis a's last plan at the horizon's times from now (held after its end)."""
         plan_times = self.params.axis.step * np.arange(self.N + 1)
         return np.interp(self.times + memory.age[a] * self.params.period, plan_times,
                          memory.planned[a])
 
-    def _advance(self, memory: TrackerMemory) -> None:
+    def _advance(self, memory: MpcTrackerMemory) -> None:
         """One period of every axis with its plan's current snap (0 after the plan's end)."""
         for a in range(AXES):
             k = memory.age[a] // self.every
@@ -258,22 +220,6 @@ class MpcTracker(LeafSystem):
             memory.x[a] = self._A @ memory.x[a] + self._B * snap
         memory.age += 1
         memory.ticks += 1
-
-
-def reexpress(memory: TrackerMemory, R_OldNew: np.ndarray, p_OldNew: np.ndarray) -> None:
-    """The virtual vehicle and its plans in the new estimator frame (M Sec. 3.5): positions
-    p_new = R^T (p_old - p_OldNew), derivatives and snaps rotated, heading minus the yaw."""
-    x = memory.x
-    x[:3] = R_OldNew.T @ x[:3]
-    x[:3, 0] -= R_OldNew.T @ p_OldNew
-    memory.snaps[:3] = R_OldNew.T @ memory.snaps[:3]
-    memory.planned[:3] = R_OldNew.T @ (memory.planned[:3] - p_OldNew[:, None])
-    yaw = heading(R_OldNew)
-    x[3, 0] -= yaw
-    memory.planned[3] -= yaw
-    memory.hold[:3] = R_OldNew.T @ (memory.hold[:3] - p_OldNew)
-    memory.hold[3] -= yaw
-    memory.direction = (R_OldNew.T @ np.append(memory.direction, 0.0))[:2]
 
 
 def load_mpc_tracker_params(filename: str = "mpc_tracker.yaml") -> MpcTrackerParams:

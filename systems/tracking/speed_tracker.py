@@ -97,14 +97,13 @@ def low_pass_rate(error: float, tau: float, lo: float, hi: float) -> tuple[float
 
 
 class SpeedTracker(ChiTracker):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` SpeedGoal (abstract; None: stop and hold);
-            `active` (1); `last_reference` REFERENCE
+    """Inputs  as `Tracker`, with `goal` a SpeedGoal (None: stop and hold)
     Outputs `reference` REFERENCE (chi of M(16) in E, stamped one period ahead);
             `tracker_status` TRACKER_STATUS (reason: ChiReason)
     """
 
     def __init__(self, params: SpeedTrackerParams):
-        super().__init__(params.period, SpeedMemory(), SpeedGoal)
+        super().__init__(params.period, SpeedMemory(), SpeedGoal(height=0.0, velocity=(0.0, 0.0)))
         self.params = params
 
     def _begin(self, context, memory: SpeedMemory, goal, estimate) -> ChiReason:
@@ -119,8 +118,9 @@ class SpeedTracker(ChiTracker):
         memory.height, memory.heading = goal.height, goal.heading
         return ChiReason.OK
 
-    def _reexpress(self, memory: SpeedMemory, R_OldNew, p_OldNew) -> None:
-        p = REFERENCE.get(memory.chi, "p")   # already in the new frame
+    def _switch_frame(self, memory: SpeedMemory, R_OldNew, p_OldNew) -> None:
+        super()._switch_frame(memory, R_OldNew, p_OldNew)
+        p = REFERENCE.get(memory.chi, "p")   # now in the new frame
         R_NewOld = R_OldNew.T
         memory.height = reexpress_point([*(R_OldNew @ p + p_OldNew)[:2], memory.height],
                                         R_OldNew, p_OldNew)[2]

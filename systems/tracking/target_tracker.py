@@ -101,16 +101,15 @@ class TargetMemory(ChiMemory):
 
 
 class TargetTracker(ChiTracker):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` TargetGoal (abstract; None: hold);
-            `active` (1); `last_reference` REFERENCE; `target_estimate` TARGET_ESTIMATE (in E;
-            unconnected: no target)
+    """Inputs  as `Tracker`, with `goal` a TargetGoal (None: hold); `target_estimate`
+            TARGET_ESTIMATE (in E; unconnected: no target)
     Outputs `reference` REFERENCE (chi of M(16) in E: position, velocity; acceleration and jerk
             zero; heading held; stamped one period ahead); `tracker_status` TRACKER_STATUS
             (reason: TargetReason)
     """
 
     def __init__(self, params: TargetTrackerParams):
-        super().__init__(params.period, TargetMemory(), TargetGoal)
+        super().__init__(params.period, TargetMemory(), TargetGoal.follow())
         self.params = params
         self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
 
@@ -123,7 +122,8 @@ class TargetTracker(ChiTracker):
             memory.offset += np.subtract(memory.goal.offset, goal.offset)
         return ChiReason.OK
 
-    def _reexpress(self, memory: TargetMemory, R_OldNew, p_OldNew) -> None:
+    def _switch_frame(self, memory: TargetMemory, R_OldNew, p_OldNew) -> None:
+        super()._switch_frame(memory, R_OldNew, p_OldNew)
         memory.p_filtered = reexpress_point(memory.p_filtered, R_OldNew, p_OldNew)
         memory.v_filtered = R_OldNew.T @ memory.v_filtered
         memory.offset = (R_OldNew.T @ [*memory.offset, 0.0])[:2]
