@@ -4,10 +4,10 @@ under 1 ms with CVXGEN on an i7-7567U).
 Flies one closed-loop waypoint flight (mocap odometry, default controller), then replays that
 flight's controller inputs tick by tick through fresh LinearMpc systems with different horizons and
 QP back ends, timing each tick's update (QP data + solve + output command) as the controller
-measures it (`controller_status.compute_time`, wall clock) and as CPU time of the thread (the
-figure to compare on a loaded machine). Both back ends solve the same MathematicalProgram:
-`persistent` keeps one warm-started osqp workspace built from it, `drake` calls Drake's
-OsqpSolver, which sets OSQP up cold on every solve.
+measures it (its `compute_timer`, wall clock; in flight: the run folder's `timing` stream) and as
+CPU time of the thread (the figure to compare on a loaded machine). Both back ends solve the
+same MathematicalProgram: `persistent` keeps one warm-started osqp workspace built from it,
+`drake` calls Drake's OsqpSolver, which sets OSQP up cold on every solve.
 
     python bench/mpc_solve.py [--horizons 2 20 40] [--seed 0]
 """
@@ -23,7 +23,6 @@ import numpy as np
 from alight.diagrams.onboard.mpc_loop import load_linear_model, load_linear_mpc
 from alight.diagrams.running.flights import fly_waypoints
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
-from alight.systems.boundary import CONTROLLER_STATUS
 from alight.systems.control.linear_mpc import LinearMpc
 
 PAPER_MEAN_US = 709.53
@@ -47,13 +46,13 @@ def tick_inputs(run) -> list[dict[str, np.ndarray]]:
 
 
 def replay(ticks, horizon: int, solver: str) -> tuple[np.ndarray, np.ndarray]:
-    """Per tick of a fresh controller fed the recorded inputs: its own compute_time (wall clock)
+    """Per tick of a fresh controller fed the recorded inputs: its own compute timer (wall clock)
     and this thread's CPU time over the same update [s] (robust to other processes' load)."""
     params = dc.replace(load_linear_mpc(), horizon_steps=horizon, solver=solver)
     mpc = LinearMpc(load_linear_model(), params)
     context = mpc.CreateDefaultContext()
     mpc.GetInputPort("active").FixValue(context, [1.0])
-    wall, cpu = [], []
+    cpu = []
     for inputs in ticks:
         for name in ("state_estimate", "reference", "fc_attitude", "last_command"):
             mpc.GetInputPort(name).FixValue(context, inputs[name])
@@ -61,9 +60,7 @@ def replay(ticks, horizon: int, solver: str) -> tuple[np.ndarray, np.ndarray]:
         start = time.thread_time()
         context.SetDiscreteState(mpc.EvalUniquePeriodicDiscreteUpdate(context))
         cpu.append(time.thread_time() - start)
-        status = mpc.GetOutputPort("controller_status").Eval(context)
-        wall.append(CONTROLLER_STATUS.get(status, "compute_time"))
-    return np.array(wall), np.array(cpu)
+    return mpc.compute_timer.seconds(), np.array(cpu)
 
 
 def row(label: str, seconds: np.ndarray) -> str:
@@ -81,8 +78,7 @@ def main() -> None:
         run = fly_waypoints(load_sim_vehicle_config(), WAYPOINTS, seed=args.seed,
                             run_dir=Path(tmp) / "flight")
         ticks = tick_inputs(run)
-        status = run["controller_status"]
-        flown = status["compute_time"][status["valid"] > 0.5].to_numpy()
+        flown = run.compute_seconds("linear_mpc")
     period = load_linear_mpc().period
     print(f"recorded flight: {len(ticks)} controller ticks at {1 / period:.0f} Hz, "
           f"landed {run.metadata['landed']}; load average {os.getloadavg()[0]:.1f} on "

@@ -2,7 +2,7 @@
 
 Runs the tracker alone on a 3-D step with a heading change (8, -6, +3 m, 2 rad) and on a 3 m
 circle at 1.5 m/s sampled at 20 Hz, and prints the QP time of each tick as the tracker measures
-it (`tracker_status.compute_time`, wall clock: mean, p99, max) and the share of ticks whose QP
+it (its `compute_timer`, wall clock: mean, p99, max) and the share of ticks whose QP
 failed (the axis then plays on its previous plan). Each tick solves at most one axis QP; the first
 tick solves all four cold.
 
@@ -109,13 +109,12 @@ def tick_times(goal, group: str, seconds: float, p_start) -> tuple[np.ndarray, n
     dut.GetInputPort("constraint_group").FixValue(context, [dut.group_names.index(group)])
     dut.GetInputPort("goal").FixValue(context, goal)
     simulator = Simulator(dut, context)
-    times, reasons = [], []
+    reasons = []
     for i in range(int(round(seconds / 0.01))):
         simulator.AdvanceTo((i + 1) * 0.01)
         status = dut.GetOutputPort("tracker_status").Eval(context)
-        times.append(TRACKER_STATUS.get(status, "compute_time"))
         reasons.append(TRACKER_STATUS.get(status, "reason"))
-    return np.array(times), np.array(reasons)
+    return dut.compute_timer.seconds(), np.array(reasons)
 
 
 def course(count: int, seed: int) -> np.ndarray:
@@ -141,9 +140,10 @@ def trajectory_generation(seeds: int, velocity_weight: float | None) -> None:
     for count in (10, 50):
         flights = {}
         for rescaling in ("per_segment", "uniform"):
+            generator.compute_timer.clear()
             results = [generator.generate(course(count, seed), rescaling=rescaling)
                        for seed in range(seeds)]
-            ms = 1e3 * np.array([r.compute_time for r in results])
+            ms = 1e3 * generator.compute_timer.seconds()
             flights[rescaling] = np.array([r.total_time for r in results])
             print(f"{count:10d}{rescaling:>13s}{ms.mean():9.1f}{ms.max():9.1f}"
                   f"{flights[rescaling].mean():10.1f}"

@@ -167,7 +167,7 @@ def run_hil(connect: str, mission: str, options: MissionOptions, params: Mavlink
             stop_when=onboard.finished)
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir(f"hil-{mission}",
                                                                              seed)
-        write_run_folder(run_dir, onboard.loggers, simulator.get_context(), {
+        write_run_folder(run_dir, onboard.loggers, simulator, {
             "command": "hil", "mission": mission, "connect": connect, "seed": seed,
             "duration": simulator.get_context().get_time(), "vehicle": params,
             **onboard.metadata, "message_rates": rates, "realtime_rate": realtime_rate,

@@ -459,7 +459,7 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
         if frames is not None:
             frames.close()
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("sim-autopilot", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, loggers, simulator, {
         "command": "sim-autopilot", "seed": seed, "listen": listen,
         "duration": simulator.get_context().get_time(), "config": vehicle_config,
         "autopilot": params, "realtime_rate": realtime_rate, "realtime": dc.asdict(report)})

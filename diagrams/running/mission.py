@@ -138,7 +138,8 @@ class Mission:
         if rows.shape[1] == 3:
             rows = np.column_stack([rows, np.full(len(rows), here[3] if heading is None
                                                   else heading)])
-        self.generated = self.generator.generate(np.vstack([here, rows]), constraints)
+        self.generated = self.generator.generate(np.vstack([here, rows]), constraints,
+                                                 stamp=self.time)
         return self.trajectory(self.generated.goal())
 
     def speed(self, goal, hold: float = 0.0) -> RoutineResult:
@@ -198,8 +199,11 @@ class Mission:
 
     @functools.cached_property
     def generator(self):
-        """The trajectory generator (models/trajectory_generation.yaml) of `fly_through`."""
-        return make_trajectory_generator()
+        """The trajectory generator (models/trajectory_generation.yaml) of `fly_through`; its
+        compute times go to the run folder's `timing` stream."""
+        generator = make_trajectory_generator()
+        self.onboard.loggers.timers["trajectory_generator"] = generator.compute_timer
+        return generator
 
     # --- plumbing ----------------------------------------------------------------------------
 
@@ -252,7 +256,7 @@ class Mission:
         while self.closers:
             self.metadata.setdefault("closed", []).append(str(self.closers.pop(0)()))
         if self.run_log is None:
-            write_run_folder(self.run_dir, self.onboard.loggers, self.context, {
+            write_run_folder(self.run_dir, self.onboard.loggers, self.simulator, {
                 "command": "mission", "duration": self.time, **self.metadata,
                 "routines": [dc.asdict(r) for r in self.results]})
             self.run_log = RunLog(self.run_dir)

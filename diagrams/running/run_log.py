@@ -4,7 +4,9 @@ Layout of a run folder (docs/run_folder.md):
     metadata.json        command, seed, configuration, versions, and per stream its columns
     <stream>.parquet     one table per logged signal, a `time` column [s] plus named columns
 Streams: `fc_command`, `fc_status`, `fc_attitude`, `ground_truth` (VectorLogSink at a fixed
-period) and `imu` (every IMU sample exactly once, with its sequence number and timestamp).
+period), `imu` (every IMU sample exactly once, with its sequence number and timestamp) and
+`timing` (the wall-clock compute times of the systems' `compute_timer`s, alight.systems.timing:
+the one stream a rerun with the same seed does not reproduce).
 """
 import dataclasses as dc
 import datetime
@@ -19,6 +21,7 @@ from pydrake.systems.primitives import VectorLogSink
 
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH, ImuSamples,
                                      VectorLayout)
+from alight.systems.timing import ComputeTimer, compute_timers, timing_frame
 
 FORMAT_VERSION = 1
 
@@ -56,8 +59,11 @@ IMU_COLUMNS = ["accel_x", "accel_y", "accel_z", "gyro_x", "gyro_y", "gyro_z"]
 
 @dc.dataclass
 class RunLoggers:
+    """The sinks of a run's streams, and the compute timers of parts outside the diagram (by
+    component name; those of its systems are collected from the diagram)."""
     vector_sinks: dict[str, tuple[VectorLogSink, VectorLayout]]
     imu_sink: ImuLogSink | None
+    timers: dict[str, ComputeTimer] = dc.field(default_factory=dict)
 
     def add(self, builder, name: str, port, layout: VectorLayout, period: float = 0.01) -> None:
         """Logs one more vector port as stream `name`."""
@@ -106,10 +112,13 @@ def _jsonable(value):
     return value
 
 
-def write_run_folder(path: str | Path, loggers: RunLoggers, root_context, run_metadata: dict
+def write_run_folder(path: str | Path, loggers: RunLoggers, simulator, run_metadata: dict
                      ) -> Path:
-    """Writes every logged stream as Parquet and metadata.json (config, seed, versions, columns)."""
+    """Writes every logged stream of `simulator`'s run as Parquet, the `timing` stream of its
+    diagram's compute timers (and `loggers.timers`), and metadata.json (config, seed, versions,
+    columns)."""
     path = Path(path)
+    root_context = simulator.get_context()
     path.mkdir(parents=True, exist_ok=True)
     streams = {}
     for name, (sink, layout) in loggers.vector_sinks.items():
@@ -124,6 +133,10 @@ def write_run_folder(path: str | Path, loggers: RunLoggers, root_context, run_me
         frame = loggers.imu_sink.frame()
         frame.to_parquet(path / "imu.parquet", index=False)
         streams["imu"] = {"file": "imu.parquet", "columns": list(frame.columns), "rows": len(frame)}
+    frame = timing_frame({**compute_timers(simulator.get_system()), **loggers.timers})
+    frame.to_parquet(path / "timing.parquet", index=False)
+    streams["timing"] = {"file": "timing.parquet", "columns": list(frame.columns),
+                         "rows": len(frame)}
     document = {"format_version": FORMAT_VERSION,
                 "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
                 "versions": _versions(), "streams": streams, **_jsonable(run_metadata)}
@@ -160,6 +173,15 @@ class RunLog:
         size = self.metadata["streams"][stream]["fields"][field]
         columns = [field] if size == 1 else [f"{field}_{i}" for i in range(size)]
         return frame[columns]
+
+    def compute_seconds(self, component: str, part: str | None = None) -> np.ndarray:
+        """Wall-clock seconds of each measured call of `component` (of `part` only, when given),
+        from the `timing` stream, e.g. `run.compute_seconds("vio", "backend")`."""
+        timing = self["timing"]
+        rows = timing["component"] == component
+        if part is not None:
+            rows &= timing["part"] == part
+        return timing["seconds"][rows].to_numpy()
 
 
 def read_run(path: str | Path) -> RunLog:

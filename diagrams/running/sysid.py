@@ -36,7 +36,7 @@ def fly_excitation(config: SimVehicleConfig, params: ExcitationParams, seed: int
     loggers = add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command"))
     loggers.add(builder, "state_estimate", estimate, STATE_ESTIMATE)
     simulator = simulate(builder.Build(), params.duration, seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, loggers, simulator, {
         "command": "sysid", "seed": seed, "duration": params.duration, "config": config,
         "excitation": params})
     return RunLog(run_dir)

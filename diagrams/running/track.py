@@ -144,7 +144,7 @@ def fly_track(vehicle_config: SimVehicleConfig, experiment: TrackExperiment, see
         lambda context: set_vehicle_mass(diagram, vehicle_config, context, vehicle_mass)
     simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate, prepare=prepare)
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("track", seed)
-    write_run_folder(run_dir, loggers, simulator.get_context(), {
+    write_run_folder(run_dir, loggers, simulator, {
         "command": "track", "seed": seed, "duration": duration, "experiment": experiment,
         "marks": trajectory.marks, "controllers": names, "controller_starts": starts,
         "vehicle_config": vehicle_config, "controllers_config": controllers_config,
