@@ -18,10 +18,12 @@ from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE
 from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
                                                     EmergencyParams, FailsafeCause, ManagerMode,
                                                     Refusal, SafetyArea, inside_polygon)
-from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
-                                                     level_command, status_vector)
+from alight.systems.control.controller import (Controller, ControllerReason, level_command,
+                                               status_vector)
+from alight.systems.control.force_controller import VehicleModel
 from alight.systems.params import ConfigError, load_params
 from alight.systems.thrust_curve import GRAVITY
+from alight.systems.tracking.tracker import Tracker
 
 NAMES = ["se3", "mpc", "failsafe"]
 AREA = SafetyArea(polygon=[[-5, -5], [5, -5], [5, 5], [-5, 5]], min_height=0.5, max_height=4.0)
@@ -46,21 +48,23 @@ class Bench:
     """The manager as `dut` with fixed inputs; every controller issues its own thrust."""
 
     def __init__(self, schedule=None, area=AREA):
-        self.dut = ControlManager(NAMES, "se3", "failsafe", "se3", area, EmergencyParams(),
-                                  VEHICLE, 0.01, schedule)
+        self.dut = ControlManager(
+            controllers=NAMES, initial_controller="se3", failsafe_controller="failsafe",
+            emergency_controller="se3", vehicle=VEHICLE, safety_area=area,
+            emergency=EmergencyParams(), period=0.01, schedule=schedule)
         self.context = self.dut.CreateDefaultContext()
         self.simulator = Simulator(self.dut, self.context)
         self.set(state_estimate=estimate(), goal=goal(), switch_request=[0, 0])
-        for i in range(len(NAMES)):
+        for i, name in enumerate(NAMES):
             self.command(i, HOVER_THRUST + 0.01 * i)
-            self.set(**{f"controller_status_{i}": status_vector(ControllerReason.OK)})
+            self.set(**{f"{name}.controller_status": status_vector(ControllerReason.OK)})
 
     def set(self, **values):
         for name, value in values.items():
             self.dut.GetInputPort(name).FixValue(self.context, np.asarray(value, dtype=float))
 
     def command(self, i, thrust):
-        self.set(**{f"fc_command_{i}": level_command(0.0, 0.0, thrust, 1.0)})
+        self.set(**{f"{NAMES[i]}.fc_command": level_command(0.0, 0.0, thrust, 1.0)})
 
     def run(self, seconds):
         self.simulator.AdvanceTo(self.context.get_time() + seconds)
@@ -73,7 +77,7 @@ class Bench:
         return self.dut.GetOutputPort(port).Eval(self.context)
 
     def active(self):
-        return [int(self.output(f"active_{i}")[0]) for i in range(len(NAMES))]
+        return [int(self.output(f"{name}.active")[0]) for name in NAMES]
 
 
 def test_switch_request_activates_the_controller_at_the_same_tick():
@@ -175,7 +179,7 @@ def test_estimate_loss_and_invalid_controller_output_switch_to_the_failsafe():
 
     bench = Bench()
     bench.run(0.05)
-    bench.set(controller_status_0=status_vector(ControllerReason.SOLVER_FAILED))
+    bench.set(**{"se3.controller_status": status_vector(ControllerReason.SOLVER_FAILED)})
     bench.run(0.01)
     assert bench.status("failsafe_cause") == FailsafeCause.BAD_CONTROLLER
     assert bench.active() == [0, 0, 1]
@@ -184,7 +188,7 @@ def test_estimate_loss_and_invalid_controller_output_switch_to_the_failsafe():
 def test_no_valid_estimate_before_the_first_one_is_not_a_failure():
     bench = Bench()
     bench.set(state_estimate=estimate(valid=0.0),
-              controller_status_0=status_vector(ControllerReason.BAD_ESTIMATE))
+              **{"se3.controller_status": status_vector(ControllerReason.BAD_ESTIMATE)})
     bench.run(0.2)
     assert bench.status("mode") == ManagerMode.NORMAL and bench.active() == [1, 0, 0]
 
@@ -194,7 +198,7 @@ def test_a_nan_command_is_never_forwarded():
     bench.run(0.05)
     bad = level_command(0.0, 0.0, HOVER_THRUST, 1.0)
     bad[FC_COMMAND.slice("w_D")] = np.nan
-    bench.set(fc_command_0=bad)
+    bench.set(**{"se3.fc_command": bad})
     command = bench.output("fc_command")
     assert np.all(np.isfinite(command))
     assert FC_COMMAND.get(command, "thrust") == pytest.approx(HOVER_THRUST)  # the last good one
@@ -234,11 +238,17 @@ def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
     config = load_control_manager_config()
     assert config.names == NAMES + ["linear_mpc"]
     assert config.tracker_names == ["mpc_tracker", "landoff", "speed", "target"]
-    controllers_config = load_controllers_config(config.controllers_file)
-    for entry in config.controllers:
-        assert build_controller(entry, controllers_config).HasOutputPort("fc_command")
+    controllers_config = config.controller_params
+    for entry in config.controllers:     # each derives from the role's base class
+        assert isinstance(build_controller(entry, controllers_config), Controller)
     for entry in config.trackers:
-        assert build_tracker(entry, controllers_config).HasOutputPort("reference")
+        assert isinstance(build_tracker(entry, controllers_config), Tracker)
+    with pytest.raises(ConfigError, match="share the names"):
+        check_control_manager_config(dc.replace(config, trackers=[TrackerEntry(
+            "se3", f"{__name__}:not_a_controller")], initial_tracker="se3"))
+    with pytest.raises(ValueError, match="share the names"):
+        ControlManager(controllers=NAMES, initial_controller="se3", failsafe_controller="failsafe",
+                       emergency_controller="se3", vehicle=VEHICLE, trackers=["se3"])
     with pytest.raises(ConfigError, match="initial_tracker"):
         check_control_manager_config(dc.replace(config, initial_tracker="pid"))
     with pytest.raises(ConfigError, match="goal"):
@@ -273,7 +283,7 @@ def test_the_documented_example_controller_registers_and_flies(tmp_path, monkeyp
         "controllers:\n  - {name: se3}\n  - {name: failsafe}\n"
         "  - {name: bandwidth, factory: 'my_controllers:make_bandwidth_controller'}\n"))
     check_control_manager_config(config)
-    controllers_config = load_controllers_config(config.controllers_file)
+    controllers_config = config.controller_params
     dut = build_controller(config.controllers[2], controllers_config)
     context = dut.CreateDefaultContext()
     dut.GetInputPort("state_estimate").FixValue(context, estimate([0.0, 0.0, 1.5]))
@@ -314,22 +324,24 @@ class TrackerBench(Bench):
     TRACKERS = ["mpc_tracker", "landoff"]
 
     def __init__(self):
-        self.dut = ControlManager(NAMES, "se3", "failsafe", "se3", AREA, EmergencyParams(),
-                                  VEHICLE, 0.01, trackers=self.TRACKERS,
-                                  initial_tracker="landoff")
+        self.dut = ControlManager(
+            controllers=NAMES, initial_controller="se3", failsafe_controller="failsafe",
+            emergency_controller="se3", vehicle=VEHICLE, trackers=self.TRACKERS,
+            initial_tracker="landoff", safety_area=AREA, emergency=EmergencyParams(),
+            period=0.01)
         self.context = self.dut.CreateDefaultContext()
         self.simulator = Simulator(self.dut, self.context)
         self.set(state_estimate=estimate([1.0, 2.0, 0.2]), switch_request=[0, 0],
                  tracker_request=[0, 0], arm=[0.0, 0.0])
-        for i in range(len(NAMES)):
+        for i, name in enumerate(NAMES):
             self.command(i, HOVER_THRUST + 0.01 * i)
-            self.set(**{f"controller_status_{i}": status_vector(ControllerReason.OK)})
-        for k, z in enumerate((2.0, 1.0)):
-            self.set(**{f"tracker_reference_{k}": goal([1.0, 2.0, z]),
-                        f"tracker_status_{k}": status_vector(ControllerReason.OK)})
+            self.set(**{f"{name}.controller_status": status_vector(ControllerReason.OK)})
+        for name, z in zip(self.TRACKERS, (2.0, 1.0)):
+            self.set(**{f"{name}.reference": goal([1.0, 2.0, z]),
+                        f"{name}.tracker_status": status_vector(ControllerReason.OK)})
 
     def trackers_active(self):
-        return [int(self.output(f"tracker_active_{k}")[0]) for k in range(2)]
+        return [int(self.output(f"{name}.active")[0]) for name in self.TRACKERS]
 
 
 def test_disarmed_manager_sends_zero_thrust_and_arming_starts_the_initial_pair():
@@ -378,17 +390,18 @@ def test_tracker_switch_is_taken_at_the_tick_and_a_failed_tracker_holds():
     bench.set(tracker_request=[2, 5])          # no tracker 5: refused, nothing changes
     bench.run(0.02)
     assert bench.status("refusal") == Refusal.UNKNOWN_TRACKER and bench.trackers_active() == [1, 0]
-    bench.set(tracker_status_0=status_vector(ControllerReason.BAD_ESTIMATE),
-              tracker_reference_0=goal([3.0, 2.0, 2.0]))
+    bench.set(**{"mpc_tracker.tracker_status": status_vector(ControllerReason.BAD_ESTIMATE),
+                 "mpc_tracker.reference": goal([3.0, 2.0, 2.0])})
     bench.run(0.02)                            # cannot produce a reference: the vehicle holds
     assert bench.status("refusal") == Refusal.TRACKER_FAILED and bench.status("held") == 1
     assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.0, 2.0, 2.0])
     bad = goal([1.0, 2.0, 2.0])
     bad[REFERENCE.slice("v")] = np.nan
-    bench.set(tracker_status_0=status_vector(ControllerReason.OK), tracker_reference_0=bad)
+    bench.set(**{"mpc_tracker.tracker_status": status_vector(ControllerReason.OK),
+                 "mpc_tracker.reference": bad})
     bench.run(0.02)
     assert np.all(np.isfinite(bench.output("reference"))) and bench.status("held") == 1
-    bench.set(tracker_reference_0=goal([1.2, 2.0, 2.0]))   # usable again, near the hold point
+    bench.set(**{"mpc_tracker.reference": goal([1.2, 2.0, 2.0])})   # usable again, near the hold
     bench.run(0.02)
     assert bench.status("held") == 0
     assert REFERENCE.get(bench.output("reference"), "p") == pytest.approx([1.2, 2.0, 2.0])

@@ -10,9 +10,9 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from alight.diagrams.onboard.estimation import BankOdometry, load_bank_params
 from alight.diagrams.running.mission import Mission
 from alight.systems.boundary import FC_ATTITUDE, FC_STATUS, STATE_ESTIMATE
-from alight.systems.control.control_manager import (ControlManager, EmergencyParams,
-                                                    ManagerMode, SafetyArea)
-from alight.systems.control.force_controller import VehicleModel, level_command
+from alight.systems.control.control_manager import ControlManager, ManagerMode
+from alight.systems.control.controller import level_command
+from alight.systems.control.force_controller import VehicleModel
 from alight.systems.estimation.bank import EstimatorBank
 from alight.systems.estimation.command_acceleration import CommandAcceleration
 from alight.systems.estimation.heading import rotation_z
@@ -154,10 +154,11 @@ def test_the_bank_takes_the_active_controllers_m53_turned_into_the_attitude_fram
 
 def test_the_control_manager_forwards_the_active_controllers_desired_acceleration():
     names = ["se3", "mpc", "failsafe"]
-    dut = ControlManager(names, "se3", "failsafe", "se3", SafetyArea(), EmergencyParams(),
-                         VehicleModel(), 0.01)
+    dut = ControlManager(controllers=names, initial_controller="se3",
+                         failsafe_controller="failsafe", emergency_controller="se3",
+                         vehicle=VehicleModel(), period=0.01)
     context = dut.CreateDefaultContext()
-    dut.GetInputPort("desired_acceleration_0").FixValue(context, [0.1, 0.2, -0.3])
+    dut.GetInputPort("se3.desired_acceleration").FixValue(context, [0.1, 0.2, -0.3])
     np.testing.assert_array_equal(dut.GetOutputPort("desired_acceleration").Eval(context),
                                   [0.1, 0.2, -0.3])
     state = context.get_mutable_discrete_state(0).get_mutable_value()

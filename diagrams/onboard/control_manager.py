@@ -2,10 +2,11 @@
 models/control_manager.yaml, each built by its factory, wired to one `ControlManager`
 (systems/control/control_manager.py).
 
-Adding a controller is one LeafSystem that follows the controller contract of
-alight.systems.boundary and one entry in the YAML list (`name`, `factory: "module:function"`);
-docs/controllers.md has a worked example. `fly_managed` flies the simulated vehicle on mocap
-odometry (with the fault injector) along an analytic reference under the manager.
+Adding a controller is one `Controller` (alight.systems.control.controller; a tracker: one
+`Tracker`, alight.systems.tracking.tracker) and one entry in the YAML list (`name`, `factory:
+"module:function"`); docs/controllers.md has a worked example. The manager names its ports after
+the entries (`se3.fc_command`, `mpc_tracker.reference`, `se3.active`). `fly_managed`
+(alight.diagrams.running.flights) flies the simulated vehicle under the manager.
 """
 import dataclasses as dc
 import importlib
@@ -21,7 +22,7 @@ from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONT
                                      TRACKER_STATUS)
 from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
                                                     EmergencyParams, SafetyArea)
-from alight.systems.params import ConfigError, bounded, load_params
+from alight.systems.params import ConfigError, bounded, load_params, param_file
 from alight.systems.tracking.landoff_tracker import make_landoff_tracker
 from alight.systems.tracking.mpc_tracker import make_mpc_tracker
 from alight.systems.tracking.speed_tracker import make_speed_tracker
@@ -61,7 +62,7 @@ class TrackerEntry:
 @dc.dataclass
 class ControlManagerConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")
-    controllers_file: str = "controllers.yaml"
+    controller_params: ControllersConfig = param_file(ControllersConfig, "controllers.yaml")
     controllers: list[ControllerEntry] = dc.field(default_factory=lambda: [
         ControllerEntry(name) for name in ("se3", "mpc", "failsafe")])
     initial_controller: str = "se3"
@@ -97,6 +98,10 @@ def check_control_manager_config(config: ControlManagerConfig, source: str = "<c
             raise ConfigError(f"{source}: key '{key}' = {getattr(config, key)!r} is not one of "
                               f"the listed controllers {names}")
     trackers = _check_entries(source, "trackers", config.trackers, TRACKERS)
+    shared = sorted(set(names) & set(trackers))
+    if shared:
+        raise ConfigError(f"{source}: keys 'controllers' and 'trackers' share the names {shared}: "
+                          f"the manager names its ports after them")
     for entry in config.trackers:
         if entry.goal_kind not in GOAL_KINDS:
             raise ConfigError(f"{source}: key 'trackers': {entry.name!r} has goal "
@@ -198,44 +203,48 @@ def add_control_manager(builder, config: ControlManagerConfig,
     that read it. Connect the manager's `fc_command` to the vehicle."""
     trackers = [] if goal is not None else config.trackers
     manager = builder.AddNamedSystem("control_manager", ControlManager(
-        config.names, config.initial_controller, config.failsafe_controller,
-        config.emergency_controller, config.safety_area, config.emergency,
-        controllers_config.vehicle, config.period, schedule,
-        [entry.name for entry in trackers], config.initial_tracker if trackers else None))
+        controllers=config.names, initial_controller=config.initial_controller,
+        failsafe_controller=config.failsafe_controller,
+        emergency_controller=config.emergency_controller, vehicle=controllers_config.vehicle,
+        trackers=[entry.name for entry in trackers],
+        initial_tracker=config.initial_tracker if trackers else None,
+        safety_area=config.safety_area, emergency=config.emergency, period=config.period,
+        schedule=schedule))
     builder.Connect(state_estimate, manager.GetInputPort("state_estimate"))
     if goal is not None:
         builder.Connect(goal, manager.GetInputPort("goal"))
     if switch_request is not None:
         builder.Connect(switch_request, manager.GetInputPort("switch_request"))
     controllers = {}
-    for i, entry in enumerate(config.controllers):
+    for entry in config.controllers:
         controller = builder.AddNamedSystem(f"controller_{entry.name}",
                                             build_controller(entry, controllers_config))
+        _connect_member(builder, manager, entry.name, controller)
         builder.Connect(state_estimate, controller.GetInputPort("state_estimate"))
         builder.Connect(manager.GetOutputPort("reference"), controller.GetInputPort("reference"))
-        builder.Connect(manager.GetOutputPort(f"active_{i}"), controller.GetInputPort("active"))
         builder.Connect(manager.GetOutputPort("fc_command"),
                         controller.GetInputPort("last_command"))
-        builder.Connect(controller.GetOutputPort("fc_command"),
-                        manager.GetInputPort(f"fc_command_{i}"))
-        builder.Connect(controller.GetOutputPort("controller_status"),
-                        manager.GetInputPort(f"controller_status_{i}"))
-        if controller.HasOutputPort("disturbance_estimate"):
-            builder.Connect(controller.GetOutputPort("disturbance_estimate"),
-                            manager.GetInputPort(f"disturbance_estimate_{i}"))
         if controller.HasInputPort("last_disturbance"):
             builder.Connect(manager.GetOutputPort("last_disturbance"),
                             controller.GetInputPort("last_disturbance"))
         if fc_attitude is not None and controller.HasInputPort("fc_attitude"):
             builder.Connect(fc_attitude, controller.GetInputPort("fc_attitude"))
-        if controller.HasOutputPort("desired_acceleration"):   # M(53), for the bank
-            builder.Connect(controller.GetOutputPort("desired_acceleration"),
-                            manager.GetInputPort(f"desired_acceleration_{i}"))
         controllers[entry.name] = controller
     return ManagedControllers(manager, controllers, {
-        entry.name: _add_tracker(builder, manager, k, entry, controllers_config, state_estimate,
+        entry.name: _add_tracker(builder, manager, entry, controllers_config, state_estimate,
                                  goals or {}, target_estimate)
-        for k, entry in enumerate(trackers)})
+        for entry in trackers})
+
+
+def _connect_member(builder, manager, name: str, system) -> None:
+    """The manager's `NAME.active` to the controller's or tracker's `active`, and each of its
+    outputs `port` the manager has a `NAME.port` input for to that input (the command and
+    status; the reference; the optional disturbance estimate and desired acceleration M(53))."""
+    builder.Connect(manager.GetOutputPort(f"{name}.active"), system.GetInputPort("active"))
+    for i in range(system.num_output_ports()):
+        output = system.get_output_port(i)
+        if manager.HasInputPort(f"{name}.{output.get_name()}"):
+            builder.Connect(output, manager.GetInputPort(f"{name}.{output.get_name()}"))
 
 
 def connect_managed_vehicle(builder, managed: ManagedControllers, vehicle, arm, tracker_request,
@@ -253,17 +262,13 @@ def connect_managed_vehicle(builder, managed: ManagedControllers, vehicle, arm, 
                                  manager.GetOutputPort("desired_acceleration"), estimate)
 
 
-def _add_tracker(builder, manager, k: int, entry: TrackerEntry, controllers_config,
-                 state_estimate, goals: dict, target_estimate=None):
+def _add_tracker(builder, manager, entry: TrackerEntry, controllers_config, state_estimate,
+                 goals: dict, target_estimate=None):
     tracker = builder.AddNamedSystem(f"tracker_{entry.name}",
                                      build_tracker(entry, controllers_config))
+    _connect_member(builder, manager, entry.name, tracker)
     builder.Connect(state_estimate, tracker.GetInputPort("state_estimate"))
     builder.Connect(manager.GetOutputPort("reference"), tracker.GetInputPort("last_reference"))
-    builder.Connect(manager.GetOutputPort(f"tracker_active_{k}"), tracker.GetInputPort("active"))
-    builder.Connect(tracker.GetOutputPort("reference"),
-                    manager.GetInputPort(f"tracker_reference_{k}"))
-    builder.Connect(tracker.GetOutputPort("tracker_status"),
-                    manager.GetInputPort(f"tracker_status_{k}"))
     goal = goals.get(entry.goal_kind) or builder.AddSystem(
         ConstantValueSource(AbstractValue.Make(None))).get_output_port()   # no goal: hold
     builder.Connect(goal, tracker.GetInputPort("goal"))

@@ -21,7 +21,7 @@ every tick, which controller is active:
   the ground) the manager watches nothing: it waits.
 
 The switch timing is the activation contract's: the decision is a function of the inputs and the
-manager's state at the tick, so the `active_i` outputs change at the same tick as the manager's
+manager's state at the tick, so the `NAME.active` outputs change at the same tick as the manager's
 state, the newly active controller computes at that tick and reads, as `last_command`, the command
 the previous one issued (the manager's `fc_command` output still forwards it until the update),
 and, as `last_disturbance`, the previous one's disturbance and mass estimates (M Sec. 7.2: "the
@@ -39,7 +39,7 @@ and the last issued reference are re-expressed in the new frame. The safety area
 Trackers (M Sec. 4 and 7.2; optional, `trackers` given to the constructor): the goal chi is then
 the active tracker's `reference` instead of the `goal` input. Trackers follow the tracker contract
 of alight.systems.boundary; they switch like controllers (`tracker_request` [id, index]), only the
-active one computes (`tracker_active_i`), and it starts from the manager's `reference` (their
+active one computes (`NAME.active`), and it starts from the manager's `reference` (their
 `last_reference`). A tracker whose status says it cannot produce a reference (valid 0 for any
 reason but INACTIVE = 1) or whose reference is not finite makes the manager hold, like a goal
 outside the safety area. Outside NORMAL mode no tracker is active.
@@ -61,14 +61,14 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
-                                     TRACKER_STATUS, VectorLayout)
+                                     TRACKER_STATUS, VectorLayout, estimate_is_valid)
+from alight.systems.control.controller import (ControllerReason, command_is_usable,
+                                               level_command)
 from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
-from alight.systems.control.force_controller import (ControllerReason, VehicleModel,
-                                                     command_is_usable, level_command)
+from alight.systems.control.force_controller import VehicleModel
 from alight.systems.control.touchdown import light_time
+from alight.systems.estimation.frames import frame_switch, reexpress_point
 from alight.systems.params import bounded
-from alight.systems.estimation.frames import reexpress_point
-from alight.systems.rotations import rotation_matrix
 
 
 class ManagerMode(enum.IntEnum):
@@ -183,49 +183,59 @@ class _Decision:
 
 
 class ControlManager(LeafSystem):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `goal` REFERENCE (chi in E; only without
+    """Built from the fields of its config (alight.diagrams.control_manager.ControlManagerConfig),
+    by keyword: `controllers` and `trackers` are the names of the YAML lists, in order (requests
+    index them); the per-controller and per-tracker ports are named after them.
+
+    Inputs  `state_estimate` STATE_ESTIMATE; `goal` REFERENCE (chi in E; only without
             trackers); `switch_request` (2) [request id, controller index] (optional:
             unconnected means no requests); `arm` (2) [arm, thrust enable] (optional:
-            unconnected means armed and flying); per
-            controller i (in the order of `names`): `fc_command_i` FC_COMMAND,
-            `controller_status_i` CONTROLLER_STATUS, `disturbance_estimate_i`
+            unconnected means armed and flying); per controller NAME: `NAME.fc_command`
+            FC_COMMAND, `NAME.controller_status` CONTROLLER_STATUS, `NAME.disturbance_estimate`
             DISTURBANCE_ESTIMATE (optional, for controllers that estimate disturbances M(35)-(37));
-            `desired_acceleration_i` (3, optional: controllers that output M(53));
+            `NAME.desired_acceleration` (3, optional: controllers that output M(53));
             with trackers, `tracker_request` (2) [request id, tracker index] (optional) and per
-            tracker k: `tracker_reference_k` REFERENCE, `tracker_status_k` TRACKER_STATUS
+            tracker NAME: `NAME.reference` REFERENCE, `NAME.tracker_status` TRACKER_STATUS
     Outputs `fc_command` FC_COMMAND (the active controller's command: the vehicle's command and
             every controller's `last_command`); `last_disturbance` DISTURBANCE_ESTIMATE (the
             active controller's, NaN when it has none: the next one takes them over);
             `desired_acceleration` (3) the active controller's unbiased desired acceleration
             M(53) [m/s^2, in E] (NaN when it has none: the estimator bank's input, M Sec. 3.1.1);
             `reference` REFERENCE (what the controllers track and every tracker's
-            `last_reference`: the goal, the safety hold or the emergency descent); `active_i` (1)
-            per controller; with trackers `tracker_active_k` (1) per tracker; `manager_status`
-            MANAGER_STATUS
-    Updated every `period` (100 Hz by default), together with the controllers and trackers.
+            `last_reference`: the goal, the safety hold or the emergency descent); `NAME.active`
+            (1) per controller and per tracker; `manager_status` MANAGER_STATUS
+    Each `NAME.port` input is fed by that controller's or tracker's `port` output, and
+    `NAME.active` feeds its `active` input. Updated every `period` (100 Hz by default), together
+    with the controllers and trackers.
     """
 
-    def __init__(self, names: list[str], initial: str, failsafe: str, emergency: str,
-                 safety_area: SafetyArea, emergency_params: EmergencyParams,
-                 vehicle: VehicleModel, period: float = 0.01,
-                 schedule: list[tuple[float, str]] | None = None,
-                 trackers: list[str] | None = None, initial_tracker: str | None = None):
+    def __init__(self, *, controllers: list[str], initial_controller: str,
+                 failsafe_controller: str, emergency_controller: str, vehicle: VehicleModel,
+                 trackers: list[str] | None = None, initial_tracker: str | None = None,
+                 safety_area: SafetyArea | None = None, emergency: EmergencyParams | None = None,
+                 period: float = 0.01, schedule: list[tuple[float, str]] | None = None):
         super().__init__()
-        self.names = list(names)
+        self.names = list(controllers)
         self.trackers = list(trackers or [])
-        for role, name in (("initial", initial), ("failsafe", failsafe),
-                           ("emergency", emergency)):
+        shared = set(self.names) & set(self.trackers)
+        if shared:
+            raise ValueError(f"controllers and trackers share the names {sorted(shared)}: their "
+                             f"ports (NAME.active) would collide")
+        for role, name in (("initial", initial_controller), ("failsafe", failsafe_controller),
+                           ("emergency", emergency_controller)):
             if name not in self.names:
                 raise ValueError(f"{role} controller {name!r} is not in the list {self.names}")
-        self._initial, self._failsafe = self.index(initial), self.index(failsafe)
-        self._emergency = self.index(emergency)
+        self._initial, self._failsafe = self.index(initial_controller), \
+            self.index(failsafe_controller)
+        self._emergency = self.index(emergency_controller)
         initial_tracker = initial_tracker or (self.trackers[0] if self.trackers else None)
         if self.trackers and initial_tracker not in self.trackers:
             raise ValueError(f"initial tracker {initial_tracker!r} is not in the list "
                              f"{self.trackers}")
+        safety_area = safety_area or SafetyArea()
         safety_area.validate()
-        self._area, self._e, self._vehicle, self._period = (safety_area, emergency_params,
-                                                            vehicle, period)
+        self._area, self._e, self._vehicle, self._period = (
+            safety_area, emergency or EmergencyParams(), vehicle, period)
         schedule = sorted(schedule or [], key=lambda item: item[0])
         self._schedule = [(float(t), self.index(name)) for t, name in schedule]
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
@@ -233,22 +243,18 @@ class ControlManager(LeafSystem):
             self.DeclareVectorInputPort("goal", REFERENCE.size)
         self._request = self.DeclareVectorInputPort("switch_request", 2)
         self._arm = self.DeclareVectorInputPort("arm", 2)
-        self._commands = [self.DeclareVectorInputPort(f"fc_command_{i}", FC_COMMAND.size)
-                          for i in range(len(names))]
-        self._statuses = [self.DeclareVectorInputPort(f"controller_status_{i}",
-                                                      CONTROLLER_STATUS.size)
-                          for i in range(len(names))]
-        self._disturbances = [self.DeclareVectorInputPort(f"disturbance_estimate_{i}",
-                                                          DISTURBANCE_ESTIMATE.size)
-                              for i in range(len(names))]
-        self._accelerations = [self.DeclareVectorInputPort(f"desired_acceleration_{i}", 3)
-                               for i in range(len(names))]
+        self._commands, self._statuses, self._disturbances, self._accelerations = (
+            [self.DeclareVectorInputPort(f"{name}.{port}", size) for name in self.names]
+            for port, size in (("fc_command", FC_COMMAND.size),
+                               ("controller_status", CONTROLLER_STATUS.size),
+                               ("disturbance_estimate", DISTURBANCE_ESTIMATE.size),
+                               ("desired_acceleration", 3)))
         self._tracker_request = self.DeclareVectorInputPort("tracker_request", 2) \
             if self.trackers else None
-        self._tracker_references = [self.DeclareVectorInputPort(
-            f"tracker_reference_{k}", REFERENCE.size) for k in range(len(self.trackers))]
-        self._tracker_statuses = [self.DeclareVectorInputPort(
-            f"tracker_status_{k}", TRACKER_STATUS.size) for k in range(len(self.trackers))]
+        self._tracker_references, self._tracker_statuses = (
+            [self.DeclareVectorInputPort(f"{name}.{port}", size) for name in self.trackers]
+            for port, size in (("reference", REFERENCE.size),
+                               ("tracker_status", TRACKER_STATUS.size)))
         x0 = _STATE.pack(active=self._initial, mode=ManagerMode.NORMAL, request_id=0,
                          next_scheduled=0, refusal=Refusal.NONE, held=0, hold_p=np.zeros(3),
                          hold_heading=0, eland_start=0, eland_p=np.zeros(3), eland_heading=0,
@@ -262,8 +268,8 @@ class ControlManager(LeafSystem):
         self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
-        # The tick's decision, computed once per context change: the `active_i`,
-        # `tracker_active_k` and `reference` outputs and the update all read it.
+        # The tick's decision, computed once per context change: the `NAME.active` and
+        # `reference` outputs and the update all read it.
         self._decision = self.DeclareCacheEntry(
             "decision", ValueProducer(allocate=AbstractValue.Make(None).Clone,
                                       calc=lambda context, value: value.set_value(
@@ -278,13 +284,13 @@ class ControlManager(LeafSystem):
                                      {self.all_input_ports_ticket(), self.all_state_ticket()})
         self.DeclareVectorOutputPort("reference", REFERENCE.size, self._calc_reference,
                                      everything)
-        for i in range(len(names)):
+        for i, name in enumerate(self.names):
             self.DeclareVectorOutputPort(
-                f"active_{i}", 1, lambda context, output, i=i: output.SetFromVector(
+                f"{name}.active", 1, lambda context, output, i=i: output.SetFromVector(
                     [float(self._active_after(context) == i)]), everything)
-        for k in range(len(self.trackers)):
+        for k, name in enumerate(self.trackers):
             self.DeclareVectorOutputPort(
-                f"tracker_active_{k}", 1, lambda context, output, k=k: output.SetFromVector(
+                f"{name}.active", 1, lambda context, output, k=k: output.SetFromVector(
                     [float(self._tracker_after(context) == k)]), everything)
         self.DeclareVectorOutputPort("manager_status", MANAGER_STATUS.size, self._calc_status,
                                      {self.all_state_ticket()})
@@ -365,8 +371,7 @@ class ControlManager(LeafSystem):
         now = context.get_time()
         x = context.get_discrete_state(self._state).get_value().copy()
         estimate = self._estimate.Eval(context)
-        estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 \
-            and bool(np.all(np.isfinite(estimate)))
+        estimate_ok = estimate_is_valid(estimate)
         # At the tick of a frame switch the control error mixes frames for the systems that
         # read this manager's outputs while the trackers update (before their update): it is not
         # watched at that tick.
@@ -572,15 +577,12 @@ class ControlManager(LeafSystem):
         """Re-expresses the stored points when the estimator frame changes (M Sec. 3.5);
         True at the tick of a switch."""
         S = _STATE
-        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
-        previous = S.get(x, "frame_counter")
-        x[S.slice("frame_counter")] = counter
-        if not np.isfinite(previous) or counter == previous:
+        switch = frame_switch(estimate, S.get(x, "frame_counter"))
+        x[S.slice("frame_counter")] = STATE_ESTIMATE.get(estimate, "frame_counter")
+        if switch is None:
             return False
-        R_OldNew = rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew"))
-        p_OldNew = STATE_ESTIMATE.get(estimate, "p_OldNew")
         for p, eta in (("hold_p", "hold_heading"), ("eland_p", "eland_heading"),
                        ("issued_p", "issued_heading")):
             x[S.slice(p)], x[S.slice(eta)] = np.split(reexpress_point(
-                np.append(S.get(x, p), S.get(x, eta)), R_OldNew, p_OldNew), [3])
+                np.append(S.get(x, p), S.get(x, eta)), *switch), [3])
         return True
