@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 from pydrake.systems.framework import Diagram
 
+
 class ComputeTimer:
     """Wall-clock seconds of the measured calls of one system, each with the simulation time it
     belongs to and the part measured ("tick"; the VIO's "frontend" and "backend").
