@@ -8,11 +8,12 @@ from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
 from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, CommandMode
-from alight.systems.control.constraint_manager import (CONSTRAINT_STATUS, REQUEST, GroupRefusal,
-                                                       load_constraint_manager_params,
-                                                       make_constraint_manager)
 from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
 from alight.systems.control.se3 import gain_group_names
+from alight.systems.managers.constraint_manager import (CONSTRAINT_STATUS, REQUEST,
+                                                        GroupRefusal,
+                                                        load_constraint_manager_params,
+                                                        make_constraint_manager)
 from alight.systems.params import ConfigError
 from alight.systems.rotations import rotation_matrix
 from alight.systems.tracking.constraints import load_constraint_group

@@ -15,12 +15,12 @@ from alight.diagrams.onboard.control_manager import (ControlManagerConfig, Contr
                                                      load_control_manager_config, parse_switch)
 from alight.diagrams.onboard.controllers import load_controllers_config
 from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE
-from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
-                                                    EmergencyParams, FailsafeCause, ManagerMode,
-                                                    Refusal, SafetyArea, inside_polygon)
 from alight.systems.control.controller import (Controller, ControllerReason, level_command,
                                                status_vector)
 from alight.systems.control.force_controller import VehicleModel
+from alight.systems.managers.control_manager import (MANAGER_STATUS, ControlManager,
+                                                     EmergencyParams, FailsafeCause, ManagerMode,
+                                                     Refusal, SafetyArea, inside_polygon)
 from alight.systems.params import ConfigError, load_params
 from alight.systems.thrust_curve import GRAVITY
 from alight.systems.tracking.tracker import Tracker

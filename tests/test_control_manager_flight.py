@@ -11,7 +11,7 @@ from alight.diagrams.running.flights import fly_managed
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.running.track import TrackExperiment, make_trajectory, resting_position
 from alight.systems.control import analytic_reference as ref
-from alight.systems.control.control_manager import FailsafeCause, ManagerMode, Refusal
+from alight.systems.managers.control_manager import FailsafeCause, ManagerMode, Refusal
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
 from alight.systems.rotations import tilt_deg
 

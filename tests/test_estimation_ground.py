@@ -10,13 +10,13 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from alight.diagrams.onboard.estimation import BankOdometry, load_bank_params
 from alight.diagrams.running.mission import Mission
 from alight.systems.boundary import FC_ATTITUDE, FC_STATUS, STATE_ESTIMATE
-from alight.systems.control.control_manager import ControlManager, ManagerMode
 from alight.systems.control.controller import level_command
 from alight.systems.control.force_controller import VehicleModel
 from alight.systems.estimation.bank import EstimatorBank
 from alight.systems.estimation.command_acceleration import CommandAcceleration
 from alight.systems.estimation.heading import rotation_z
 from alight.systems.estimation.measurements import RANGE
+from alight.systems.managers.control_manager import ControlManager, ManagerMode
 from alight.systems.params import ConfigError
 from alight.systems.thrust_curve import GRAVITY
 

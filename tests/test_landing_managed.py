@@ -11,7 +11,7 @@ from alight.diagrams.scenario import load_scenario
 from alight.diagrams.analysis.landing import tracker_switches
 from alight.diagrams.onboard.landing_managed import landing_manager_config
 from alight.diagrams.running.run_log import RunLog
-from alight.systems.control.control_manager import ManagerMode
+from alight.systems.managers.control_manager import ManagerMode
 from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode
 from alight.systems.mission.landing_requests import LandingRequests
 from alight.systems.params import ConfigError

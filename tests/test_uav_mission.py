@@ -8,8 +8,8 @@ from pydrake.systems.primitives import ConstantVectorSource
 from alight.diagrams.cli import main
 from alight.diagrams.running.run_log import RunLog
 from alight.diagrams.running.mission import Mission, MissionError
-from alight.systems.control.control_manager import FailsafeCause, ManagerMode
 from alight.systems.estimation.frames import FrameSwitch
+from alight.systems.managers.control_manager import FailsafeCause, ManagerMode
 from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults
 
 

@@ -1,6 +1,6 @@
 """The control manager's diagram, M Sec. 7.2: the controllers and trackers listed in
 models/control_manager.yaml, each built by its factory, wired to one `ControlManager`
-(systems/control/control_manager.py).
+(systems/managers/control_manager.py).
 
 Adding a controller is one `Controller` (alight.systems.control.controller; a tracker: one
 `Tracker`, alight.systems.tracking.tracker) and one entry in the YAML list (`name`, `factory:
@@ -20,8 +20,8 @@ from alight.models import model_path
 from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_STATUS,
                                      REFERENCE, STATE_ESTIMATE, TRACKER_INPUTS, TRACKER_OUTPUTS,
                                      TRACKER_STATUS)
-from alight.systems.control.control_manager import (MANAGER_STATUS, ControlManager,
-                                                    EmergencyParams, SafetyArea)
+from alight.systems.managers.control_manager import (MANAGER_STATUS, ControlManager,
+                                                     EmergencyParams, SafetyArea)
 from alight.systems.params import ConfigError, bounded, load_params, param_file
 from alight.systems.tracking.landoff_tracker import make_landoff_tracker
 from alight.systems.tracking.mpc_tracker import make_mpc_tracker

@@ -15,9 +15,9 @@ from alight.diagrams.onboard.controllers import ControllersConfig, load_controll
 from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.diagrams.running.run_log import RunLoggers
 from alight.models import model_path
-from alight.systems.control.constraint_manager import (CONSTRAINT_STATUS, ConstraintManager,
-                                                       make_constraint_manager)
-from alight.systems.mission.uav_manager import UAV_STATUS, UavManager, UavManagerParams
+from alight.systems.managers.constraint_manager import (CONSTRAINT_STATUS, ConstraintManager,
+                                                        make_constraint_manager)
+from alight.systems.managers.uav_manager import UAV_STATUS, UavManager, UavManagerParams
 from alight.systems.params import ConfigError, load_params
 
 

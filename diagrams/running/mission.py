@@ -43,8 +43,8 @@ from alight.hw.mavlink_vehicle import (LINK_STATUS, MavlinkVehicleParams, comman
                                        load_mavlink_vehicle_params, make_mavlink_vehicle)
 from alight.hw.realtime import Pacer, WallClock
 from alight.systems.boundary import STATE_ESTIMATE
-from alight.systems.control.constraint_manager import CONSTRAINT_STATUS, GroupRefusal
-from alight.systems.mission.uav_manager import UAV_STATUS, Routine, UavCommand, UavRefusal
+from alight.systems.managers.constraint_manager import CONSTRAINT_STATUS, GroupRefusal
+from alight.systems.managers.uav_manager import UAV_STATUS, Routine, UavCommand, UavRefusal
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.trajectory_generation import make_trajectory_generator
 

@@ -5,7 +5,7 @@
 i.e. the feedback acceleration a_fb = -k_p o e_p - k_v o e_v of `ForceController`, with gains from
 a named group (soft / medium / tight, M Sec. 7.5) that also carries the disturbance-integrator gains.
 The group is switchable in flight through the optional `gain_group` input (the gain manager of
-M Sec. 7.5, alight.systems.control.constraint_manager): read every tick, it changes k_p, k_v and
+M Sec. 7.5, alight.systems.managers.constraint_manager): read every tick, it changes k_p, k_v and
 the integrator gains only; the integrators hold forces [N], so the disturbance estimate carries
 over unchanged and the command does not jump.
 """

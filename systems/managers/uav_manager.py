@@ -5,9 +5,9 @@ It drives the control manager (M Sec. 7.2) through its request ports: arming, tr
 controller switch requests, and one goal per kind of tracker goal (a point or trajectory
 `TrackerGoal` for the flying tracker, a `LandoffGoal` for the take-off/landing tracker, a
 `SpeedGoal` for the speed tracker). Commands arrive as `UavCommand` values with increasing ids on
-the abstract `command` input (the mission API in alight.diagrams.uav sets it); each is either
-started or refused with a reason, and `uav_status` says when it is done. A command waits for the
-first valid state estimate.
+the abstract `command` input (the mission API, alight.diagrams.running.mission, sets it); each is
+either started or refused with a reason, and `uav_status` says when it is done. A command waits
+for the first valid state estimate.
 
 Routines (M Sec. 7.6): `takeoff` arms and climbs with the take-off tracker and controller, then
 activates the flying tracker and controller holding the reached point; `goto` and `trajectory`
@@ -28,9 +28,9 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import FC_STATUS, STATE_ESTIMATE, VectorLayout
-from alight.systems.control.control_manager import MANAGER_STATUS, ManagerMode, SafetyArea
-from alight.systems.params import bounded
 from alight.systems.estimation.frames import reexpress_point
+from alight.systems.managers.control_manager import MANAGER_STATUS, ManagerMode, SafetyArea
+from alight.systems.params import bounded
 from alight.systems.rotations import rotation_matrix
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.landoff_tracker import LandoffGoal
