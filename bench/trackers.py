@@ -64,7 +64,7 @@ def whole_ticks(dut, goals: list[tuple[float, object]], seconds: float,
 def other_trackers(seconds: float) -> None:
     from alight.diagrams.onboard.controllers import load_controllers_config
     from alight.systems.boundary import TARGET_ESTIMATE
-    from alight.systems.control.force_controller import level_command
+    from alight.systems.control.controller import level_command
     from alight.systems.tracking.landoff_tracker import LandoffGoal, make_landoff_tracker
     from alight.systems.tracking.speed_tracker import SpeedGoal, make_speed_tracker
     from alight.systems.tracking.target_tracker import TargetGoal, make_target_tracker

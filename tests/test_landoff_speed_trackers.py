@@ -13,7 +13,7 @@ from alight.diagrams.running.flights import fly_landoff
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.running.track import resting_position
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
-from alight.systems.control.force_controller import level_command
+from alight.systems.control.controller import level_command
 from alight.systems.params import ConfigError
 from alight.systems.plant.tether import TetherParams, tether_tension
 from alight.systems.rotations import heading_quaternion, tilt_deg

@@ -1,8 +1,8 @@
 """The control manager, M Sec. 7.2: picks the active controller, holds the safety area, watches the
 control error (emergency landing, failsafe) and forwards the active controller's command.
 
-Controllers follow the controller contract of alight.systems.boundary. The manager decides, at
-every tick, which controller is active:
+Controllers are `Controller`s (alight.systems.control.controller). The manager decides, at every
+tick, which controller is active:
 
 - a switch request on the `switch_request` input ([request id, controller index]: a new id > 0
   asks for the controller at that index of the YAML list; id 0 is no request) or a scheduled
@@ -37,12 +37,12 @@ Estimator frame changes (frame_counter, M Sec. 3.5): the hold point, the emergen
 and the last issued reference are re-expressed in the new frame. The safety area is given in E.
 
 Trackers (M Sec. 4 and 7.2; optional, `trackers` given to the constructor): the goal chi is then
-the active tracker's `reference` instead of the `goal` input. Trackers follow the tracker contract
-of alight.systems.boundary; they switch like controllers (`tracker_request` [id, index]), only the
-active one computes (`NAME.active`), and it starts from the manager's `reference` (their
-`last_reference`). A tracker whose status says it cannot produce a reference (valid 0 for any
-reason but INACTIVE = 1) or whose reference is not finite makes the manager hold, like a goal
-outside the safety area. Outside NORMAL mode no tracker is active.
+the active tracker's `reference` instead of the `goal` input. Trackers are `Tracker`s
+(alight.systems.tracking.tracker); they switch like controllers (`tracker_request` [id,
+index]), only the active one computes (`NAME.active`), and it starts from the manager's
+`reference` (their `last_reference`). A tracker whose status says it cannot produce a reference
+(valid 0 for any reason but INACTIVE = 1) or whose reference is not finite makes the manager
+hold, like a goal outside the safety area. Outside NORMAL mode no tracker is active.
 
 Arming (optional `arm` input [arm, thrust enable]; unconnected means armed from the start): unless
 both are 1 the manager is DISARMED: no controller or tracker is active, the command is level with
@@ -183,9 +183,10 @@ class _Decision:
 
 
 class ControlManager(LeafSystem):
-    """Built from the fields of its config (alight.diagrams.control_manager.ControlManagerConfig),
-    by keyword: `controllers` and `trackers` are the names of the YAML lists, in order (requests
-    index them); the per-controller and per-tracker ports are named after them.
+    """Built from the fields of its config (ControlManagerConfig of
+    alight.diagrams.onboard.control_manager), by keyword: `controllers` and `trackers` are the
+    names of the YAML lists, in order (requests index them); the per-controller and per-tracker
+    ports are named after them.
 
     Inputs  `state_estimate` STATE_ESTIMATE; `goal` REFERENCE (chi in E; only without
             trackers); `switch_request` (2) [request id, controller index] (optional:
