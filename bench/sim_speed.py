@@ -34,7 +34,7 @@ def hover_diagram(duration: float):
     config = load_sim_vehicle_config()
     builder = DiagramBuilder()
     vehicle = builder.AddSystem(make_sim_vehicle(config))
-    pilot = builder.AddSystem(ScriptedPilot(hover_profile(duration), pilot_model(config)))
+    pilot = builder.AddSystem(ScriptedPilot(hover_profile(duration), pilot_model(config.airframe)))
     builder.Connect(pilot.get_output_port(), vehicle.GetInputPort("fc_command"))
     return builder.Build()
 

@@ -1,22 +1,85 @@
-"""Landing scenarios (L Sec. 6-7): the scenario files (`load_scenario`), the odometry a scenario's
-`estimator` names (`landing_odometry`) and the simulated vehicle in the scenario's world
-(`vehicle_config`: the moving target, the down camera, wind). The onboard landing stack that flies a
-scenario is diagrams/onboard/landing.py, its runner diagrams/running/landing.py `run_landing`.
+"""One typed scenario tree per run (DESIGN.md "Scenarios, parameters and errors"), modelled on
+manipulation's `Scenario` / `LoadScenario` and Drake's hardware_sim (a scenario file plus YAML
+overrides).
+
+A `Scenario` is the whole run as typed objects: the simulated vehicle in its world
+(`vehicle`: airframe, flight controller, sensors, wind, the target car), how the target drives
+(`target_motion`), the onboard stack (`onboard`: which stack, its odometry, controller and
+tunings), the mission (`mission`: a tagged union of the missions the stacks fly), scoring,
+`random_seed` and the simulator's settings. `load_scenario(filename=..., data=...,
+overrides=[...])` resolves every referenced parameter file once (systems/params.py), applies the
+overrides ('key.sub: value') and validates with the range checks. A run folder stores the result
+as `scenario.yaml` (`dump_scenario`): loading it back reproduces the run without any file of
+models/.
 """
 import dataclasses as dc
+from pathlib import Path
 
 import numpy as np
+from pydrake.common.yaml import yaml_dump_typed
 
+from alight.diagrams.onboard.control_manager import (ControlManagerConfig,
+                                                     check_control_manager_config)
 from alight.diagrams.onboard.estimation import scenario_odometry
-from alight.diagrams.world.sim_vehicle import SimVehicleConfig, load_sim_vehicle_config
+from alight.diagrams.world.sim_vehicle import SimVehicleConfig
 from alight.models import model_path
+from alight.systems.control.linear_model import LinearModelParams
+from alight.systems.control.linear_mpc import LinearMpcParams
+from alight.systems.control.scripted_pilot import PilotProfile
+from alight.systems.estimation.bank import BankParams, check_bank
 from alight.systems.mission.landing import LandingMissionParams
-from alight.systems.params import bounded, choice, load_params, validate
-from alight.systems.plant.wind import WindParams
-from alight.systems.sensors.down_camera import DownCameraParams
-from alight.systems.target.vehicle import load_target_params
+from alight.systems.mission.waypoints import WaypointMissionParams
+from alight.systems.params import (ConfigError, bounded, choice, load_params, param_file,
+                                   validate)
+from alight.systems.sensors.mocap import MocapParams
+from alight.systems.sensors.rgbd_camera import RgbdCameraParams
+from alight.systems.vio.estimator import VioParams
 
-SCENARIOS = {"mbzirc": "scenario_mbzirc.yaml", "field": "scenario_field.yaml"}
+SCENARIOS = {name: f"scenario_{name}.yaml"
+             for name in ("field", "mbzirc", "field_hil", "waypoints", "hover")}
+
+
+@dc.dataclass
+class TargetMotion:
+    """How the car drives: the profile of systems/target/motion.py at `speed` along `heading`,
+    placed so that it passes under the mission's waypoint `approach_time` after the start
+    (the figure eight starts at its crossing point, the waypoint)."""
+    profile: str = choice("field_test", "figure_eight", "straight")
+    speed: float = bounded(3.0, 0.0, 20.0, "m/s")               # the profile's (mean) speed
+    heading: float = bounded(90.0, -360.0, 360.0, "deg")
+    approach_time: float = bounded(20.0, 0.0, 600.0, "s")
+    speed_std: float = bounded(0.3, 0.0, 10.0, "m/s")           # field test speed spread
+    turn_rate_std: float = bounded(3.0, 0.0, 180.0, "deg/s")    # field test wander
+    pull_rate: float = bounded(0.3, 0.0, 60.0, "1/min")         # field test sharp pulls
+    pull_times: list[float] = dc.field(default_factory=list)    # s, pulls at fixed times
+
+
+ESTIMATORS_NOTE = ("mocap, vio (L Sec. 5.1: the forward RGB-D camera `vio_camera`, its frame "
+                   "at the take-off point), bank (M Sec. 3.5: the arbiter) or a filter of the bank")
+
+
+@dc.dataclass
+class Onboard:
+    """The onboard stack (diagrams/onboard/registry.py `STACKS`) and its parts' parameters."""
+    stack: str = choice("landing", "landing_managed", "waypoints", "hover")
+    estimator: str = "mocap"             # odometry: ESTIMATORS_NOTE
+    controller: str = "linear_mpc"       # landing_managed: a controller of `control_manager`
+    linear_mpc: LinearMpcParams = param_file(LinearMpcParams, "linear_mpc.yaml")
+    linear_model: LinearModelParams = param_file(LinearModelParams, "linear_model.yaml")
+    mocap: MocapParams = dc.field(default_factory=MocapParams)
+    estimator_bank: BankParams = param_file(BankParams, "estimator_bank.yaml")
+    vio: VioParams = param_file(VioParams, "vio.yaml")
+    vio_camera: RgbdCameraParams = param_file(RgbdCameraParams, "rgbd_camera_landing.yaml")
+    control_manager: ControlManagerConfig = param_file(ControlManagerConfig,
+                                                       "control_manager.yaml")
+
+
+@dc.dataclass
+class WaypointPlan:
+    """The waypoint mission of the `waypoints` stack: rows x, y, z in W [m]."""
+    waypoints: list[list[float]] = dc.field(default_factory=lambda: [[0.0, 0.0, 2.0],
+                                                                     [3.0, 0.0, 2.0]])
+    params: WaypointMissionParams = dc.field(default_factory=WaypointMissionParams)
 
 
 @dc.dataclass
@@ -27,93 +90,120 @@ class ImpactLimits:
 
 
 @dc.dataclass
-class LandingScenario:
-    """A landing run: vehicle, target, camera, wind, mission and scoring limits (models/scenario_*)."""
-    name: str = "field"
-    vehicle: str = "sim_vehicle.yaml"
-    vehicle_position: list[float] = bounded([0.0, -8.0], -1e4, 1e4, "m")  # take-off point, x y
-    target: str = "target.yaml"
-    target_profile: str = choice("field_test", "figure_eight", "straight")
-    target_speed: float = bounded(3.0, 0.0, 20.0, "m/s")   # the profile's (mean) speed
-    target_heading: float = bounded(90.0, -360.0, 360.0, "deg")
-    # The target starts target_speed * approach_time before the waypoint along its heading, so
-    # that it passes under the waypoint when the vehicle is there (figure eight: at the crossing).
-    approach_time: float = bounded(20.0, 0.0, 600.0, "s")
-    target_speed_std: float = bounded(0.3, 0.0, 10.0, "m/s")          # field test speed spread
-    target_turn_rate_std: float = bounded(3.0, 0.0, 180.0, "deg/s")   # field test wander
-    target_pull_rate: float = bounded(0.3, 0.0, 60.0, "1/min")        # field test sharp pulls
-    target_pull_times: list[float] = dc.field(default_factory=list)   # s, pulls at fixed times
-    camera: str = choice("geometric", "rendered")
-    camera_file: str = "down_camera.yaml"
-    camera_blackouts: list[list[float]] = dc.field(default_factory=list)  # [[start, end], ...] s
-    wind: WindParams = dc.field(default_factory=WindParams)
-    mission: LandingMissionParams = dc.field(default_factory=LandingMissionParams)
-    mpc: str = "linear_mpc.yaml"    # the MPC's tuning (models/)
-    # The odometry flown on: mocap, `vio` (L Sec. 5.1: the forward RGB-D camera `rgbd_camera`
-    # and the VIO of `vio`, its frame placed at the take-off point: a surveyed start), or the
-    # estimator bank of `estimator_bank` (M Sec. 3.5): `bank` (its arbiter) or one of its
-    # filters by name (diagrams/onboard/estimation.py)
-    estimator: str = "mocap"
-    estimator_bank: str = "estimator_bank.yaml"
-    rgbd_camera: str = "rgbd_camera_landing.yaml"
-    vio: str = "vio.yaml"
+class Scoring:
     impact: ImpactLimits = dc.field(default_factory=ImpactLimits)
-    max_duration: float = bounded(90.0, 5.0, 3600.0, "s")
-    settle_time: float = bounded(2.0, 0.5, 30.0, "s")  # after disarming, to judge the rest
+    settle_time: float = bounded(2.0, 0.5, 30.0, "s")   # at rest after disarming, to judge
 
 
-def load_scenario(name_or_file: str = "field") -> LandingScenario:
-    """A scenario by name (`mbzirc`, `field`) or YAML file (a path, or a file name in models/);
-    a ConfigError names the file and the key (also an unknown `estimator`)."""
-    path = model_path(SCENARIOS.get(name_or_file, name_or_file))
-    scenario = load_params(LandingScenario, path)
-    check_estimator(scenario, str(path))
+@dc.dataclass
+class SimulatorSettings:
+    max_duration: float = bounded(90.0, 1.0, 3600.0, "s")
+
+
+@dc.dataclass
+class Scenario:
+    """A run (models/scenario_*.yaml); see the module text."""
+    name: str = "field"
+    random_seed: int = 0
+    vehicle: SimVehicleConfig = param_file(SimVehicleConfig, "sim_vehicle.yaml")
+    target_motion: TargetMotion = dc.field(default_factory=TargetMotion)
+    camera_blackouts: list[list[float]] = dc.field(default_factory=list)  # down camera [s]
+    onboard: Onboard = dc.field(default_factory=Onboard)
+    mission: LandingMissionParams | WaypointPlan | PilotProfile = dc.field(
+        default_factory=LandingMissionParams)
+    scoring: Scoring = dc.field(default_factory=Scoring)
+    simulator: SimulatorSettings = dc.field(default_factory=SimulatorSettings)
+
+
+def scenario_file(name_or_file: str | Path) -> Path:
+    """A scenario by name (SCENARIOS) or file (a path, or a file in models/)."""
+    name = str(name_or_file)
+    path = Path(name)
+    return path if path.is_file() else model_path(SCENARIOS.get(name, name))
+
+
+def load_scenario(filename: str | Path | None = None, data: str | None = None,
+                  overrides: list[str] | tuple = ()) -> Scenario:
+    """The scenario of a file (or name, see `scenario_file`) or YAML string, with `overrides`
+    ('key.sub: value' each) applied; every referenced file resolved and everything validated,
+    once. Raises ConfigError naming the file (or override), the key and the allowed range."""
+    source = scenario_file(filename) if filename is not None else None
+    scenario = load_params(Scenario, source, data=data, overrides=overrides)
+    check_scenario(scenario, str(source or "<yaml string>"))
     return scenario
 
 
-def check_estimator(scenario: LandingScenario, where: str = "<scenario>") -> None:
-    """Raises ConfigError naming `where` and the key when `estimator` names no odometry."""
-    if scenario.estimator != "vio":
-        scenario_odometry(scenario.estimator, scenario.estimator_bank, where, others=("vio",))
+# The mission each onboard stack flies (diagrams/stacks.py builds them).
+STACK_MISSIONS = {"landing": LandingMissionParams, "landing_managed": LandingMissionParams,
+                  "waypoints": WaypointPlan, "hover": PilotProfile}
 
 
-def landing_odometry(scenario: LandingScenario):
-    """The `odometry` hook of the scenario's `estimator` (None: mocap)."""
-    if scenario.estimator != "vio":
-        return scenario_odometry(scenario.estimator, scenario.estimator_bank)
-    from alight.diagrams.onboard.vio import VioRun, load_vio_params
-    params = load_vio_params(scenario.vio)
-    start = [*scenario.vehicle_position, params.initial_position[2]]
-    return VioRun(dc.replace(params, initial_position=start))
+def check_scenario(scenario: Scenario, where: str) -> None:
+    """What the range checks cannot say: the stack flies the scenario's kind of mission, the
+    estimator exists, the direct landing stack flies the linear MPC. ConfigError names `where`
+    and the key."""
+    onboard = scenario.onboard
+    check_control_manager_config(onboard.control_manager, f"{where}: onboard.control_manager")
+    check_bank(onboard.estimator_bank, f"{where}: onboard.estimator_bank")
+    kind = STACK_MISSIONS[onboard.stack]
+    if not isinstance(scenario.mission, kind):
+        raise ConfigError(f"{where}: key 'mission' is a {type(scenario.mission).__name__}; the "
+                          f"'{onboard.stack}' stack (key 'onboard.stack') flies a "
+                          f"{kind.__name__} (tag it !{kind.__name__})")
+    if onboard.estimator != "vio":
+        scenario_odometry(onboard.estimator, onboard.estimator_bank, where, others=("vio",),
+                          key="onboard.estimator")
+    if onboard.stack == "landing" and onboard.controller != "linear_mpc":
+        raise ConfigError(f"{where}: key 'onboard.controller' = {onboard.controller!r}: the "
+                          f"direct landing stack flies linear_mpc only (onboard.stack: "
+                          f"landing_managed flies the control manager's controllers)")
 
 
-def vehicle_config(scenario: LandingScenario) -> SimVehicleConfig:
-    """The simulated vehicle with the scenario's target, down camera and wind."""
-    config = load_sim_vehicle_config(scenario.vehicle)
-    target = load_target_params(scenario.target)
-    heading = np.radians(scenario.target_heading)
+def dump_scenario(scenario: Scenario) -> str:
+    """The fully resolved scenario as YAML (what a run folder's scenario.yaml holds)."""
+    return yaml_dump_typed(scenario)
+
+
+def placed_target(scenario: Scenario):
+    """The vehicle's target car with the scenario's motion, placed to pass under the waypoint."""
+    motion, car = scenario.target_motion, scenario.vehicle.target
+    heading = np.radians(motion.heading)
     waypoint = np.asarray(scenario.mission.waypoint[:2])
-    start = waypoint - scenario.target_speed * scenario.approach_time * np.array(
+    start = waypoint - motion.speed * motion.approach_time * np.array(
         [np.cos(heading), np.sin(heading)])
-    if scenario.target_profile == "figure_eight":
-        start = waypoint  # the track starts at its crossing point
-        motion = {"figure_eight": dc.replace(target.figure_eight, speed=scenario.target_speed)}
-    elif scenario.target_profile == "straight":
-        motion = {"straight": dc.replace(target.straight, speed=scenario.target_speed)}
+    if motion.profile == "figure_eight":
+        start = waypoint   # the track starts at its crossing point
+        profile = {"figure_eight": dc.replace(car.figure_eight, speed=motion.speed)}
+    elif motion.profile == "straight":
+        profile = {"straight": dc.replace(car.straight, speed=motion.speed)}
     else:
-        motion = {"field_test": dc.replace(
-            target.field_test, mean_speed=scenario.target_speed,
-            speed_std=scenario.target_speed_std,
-            turn_rate_std=scenario.target_turn_rate_std, pull_rate=scenario.target_pull_rate,
-            pull_times=list(scenario.target_pull_times))}
-    target = dc.replace(target, profile=scenario.target_profile, initial_position=list(start),
-                        initial_heading=scenario.target_heading, **motion)
-    camera = dc.replace(load_params(DownCameraParams, model_path(scenario.camera_file)),
-                        source=scenario.camera)
-    config = dc.replace(config, target=target, down_camera=camera, wind=scenario.wind,
-                        initial_position=list(scenario.vehicle_position))
-    if scenario.estimator == "vio":    # the VIO's forward RGB-D camera
-        from alight.diagrams.onboard.vio import load_rgbd_camera_params
-        config = dc.replace(config, rgbd_camera=load_rgbd_camera_params(scenario.rgbd_camera))
+        profile = {"field_test": dc.replace(
+            car.field_test, mean_speed=motion.speed, speed_std=motion.speed_std,
+            turn_rate_std=motion.turn_rate_std, pull_rate=motion.pull_rate,
+            pull_times=list(motion.pull_times))}
+    return dc.replace(car, profile=motion.profile, initial_position=list(start),
+                      initial_heading=motion.heading, **profile)
+
+
+def vehicle_config(scenario: Scenario) -> SimVehicleConfig:
+    """The simulated vehicle of the scenario: with a landing mission, the target car placed by
+    `target_motion`; with VIO odometry, the forward RGB-D camera `onboard.vio_camera`."""
+    config = scenario.vehicle
+    if isinstance(scenario.mission, LandingMissionParams):
+        config = dc.replace(config, target=placed_target(scenario))
+    if scenario.onboard.estimator == "vio":
+        config = dc.replace(config, rgbd_camera=scenario.onboard.vio_camera)
     validate(config, f"scenario {scenario.name}")
     return config
+
+
+SCENARIO_FILE = "scenario.yaml"   # in a run folder
+
+
+def write_scenario(run_dir: str | Path, scenario: Scenario) -> Path:
+    """Writes the fully resolved scenario into a run folder (what `alight land --scenario
+    RUN/scenario.yaml` reads to fly the run again)."""
+    path = Path(run_dir) / SCENARIO_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(dump_scenario(scenario))
+    return path

@@ -46,6 +46,12 @@ def choice(default: str, *allowed: str):
     return dc.field(default=default, metadata={"choices": (default,) + allowed})
 
 
+def param_file(schema: type[T], filename: str):
+    """A parameter-dataclass field whose default is the shipped file `filename` (models/);
+    a YAML value there is a mapping, a file name or {from: FILE, ...} (`load_params`)."""
+    return dc.field(default_factory=lambda: load_params(schema, MODELS_DIR / filename))
+
+
 def load_params(schema: type[T], filename: str | Path | None = None, data: str | None = None,
                 defaults: T | None = None, overrides: list[str] | tuple = ()) -> T:
     """Loads and validates `schema` from a YAML file or string, resolving file references and
@@ -156,8 +162,8 @@ def resolve_tree(schema, tree, source: str, base: Path, prefix: str = ""):
     resolved content; checks keys and scalar types, naming `source` and the key."""
     if isinstance(tree, (str, Path)):
         path = locate(tree, base)
-        return resolve_tree(schema, _read_yaml(path, f"{source}: key '{prefix.rstrip('.') or '<top>'}'"
-                                               f" = {str(tree)!r}"), str(path), path.parent, prefix)
+        where = f"{source}: key '{prefix.rstrip('.') or '<top>'}' = {path}"
+        return resolve_tree(schema, _read_yaml(path, where), str(path), path.parent, prefix)
     if not isinstance(tree, dict):
         raise ConfigError(f"{source}: key '{prefix.rstrip('.') or '<top>'}' = {tree!r} must be a "
                           f"mapping of {schema.__name__} or a file name")
@@ -188,8 +194,8 @@ def resolve_value(hint, value, source: str, base: Path, key: str):
                               f"{['!' + name for name in variants]}")
         return Tagged(value.tag, resolve_tree(variants[value.tag], value.value or {}, source,
                                               base, key + "."))
-    if variants and value is not None:   # untagged: the first variant, as Drake reads it
-        return resolve_tree(next(iter(variants.values())), value, source, base, key + ".")
+    if variants and value is not None:   # untagged: the first variant that fits it
+        return _first_fitting(variants, value, source, base, key)
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin is list and isinstance(value, list) and args:
         return [resolve_value(args[0], item, source, base, f"{key}[{i}]")
@@ -197,6 +203,8 @@ def resolve_value(hint, value, source: str, base: Path, key: str):
     if origin is dict and isinstance(value, dict) and len(args) == 2:
         return {k: resolve_value(args[1], v, source, base, f"{key}.{k}")
                 for k, v in value.items()}
+    if hint is float and isinstance(value, str):
+        value = _yaml_float(value)   # YAML 1.2 numbers PyYAML leaves as text (1.0e9)
     if hint in (float, int) and not (isinstance(value, (int, float)) and
                                      not isinstance(value, bool)):
         raise ConfigError(f"{source}: key '{key}' = {value!r} is not a number "
@@ -206,6 +214,29 @@ def resolve_value(hint, value, source: str, base: Path, key: str):
     if hint is str and not isinstance(value, str):
         raise ConfigError(f"{source}: key '{key}' = {value!r} is not a string")
     return value
+
+
+def _first_fitting(variants: dict, value, source: str, base: Path, key: str):
+    """An untagged value of a Union: resolved as the first variant whose keys it fits, tagged
+    when that is not the first (Drake reads an untagged value as the first)."""
+    errors = []
+    for i, (tag, schema) in enumerate(variants.items()):
+        try:
+            tree = resolve_tree(schema, value, source, base, key + ".")
+        except ConfigError as e:
+            errors.append(e)
+            continue
+        return tree if i == 0 else Tagged(tag, tree)
+    raise errors[0]
+
+
+def _yaml_float(text: str):
+    """`text` as a float where YAML 1.2 (Drake's reader) reads one, else `text` itself."""
+    try:
+        return float(text) if text.strip().lstrip("+-")[:1].isdigit() or \
+            text.strip().lstrip("+-")[:1] == "." else text
+    except ValueError:
+        return text
 
 
 def _merge(schema, base_tree: dict, top: dict, prefix: str) -> dict:
@@ -253,7 +284,9 @@ def _set_path(schema, tree: dict, path: list[str], value, source: str, full: str
     nested = _variant_of(hints[key], old)
     inner = old.value if isinstance(old, Tagged) else old
     if len(path) == 1:
-        new = resolve_value(hints[key], value, source, Path.cwd(), full)
+        # A Union value takes the present variant unless the override names its own (!Tag).
+        hint = nested if _variants(hints[key]) and not isinstance(value, Tagged) else hints[key]
+        new = resolve_value(hint, value, source, Path.cwd(), full)
         if nested is not None and isinstance(new, dict) and isinstance(inner, dict) and not (
                 isinstance(value, (str, Path)) or FROM_KEY in value):
             new = _merge(nested, inner, new, full + ".")

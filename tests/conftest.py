@@ -43,7 +43,8 @@ def assert_landed(run, scenario, speed: float):
     0.5 m (the paper: 2.5-45.8 cm), 2-15 s from the first detection (4.8-7.7 s), the target at
     `speed`. Returns the score."""
     from alight.diagrams.analysis.landing import score_landing
-    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
+    impact = scenario.scoring.impact
+    score = score_landing(run, impact.vertical_speed, impact.horizontal_speed)
     assert score.success, score.row()
     assert score.e_xy < 0.5
     assert 2.0 < score.tracking_duration < 15.0

@@ -238,7 +238,7 @@ def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
     config = load_control_manager_config()
     assert config.names == NAMES + ["linear_mpc"]
     assert config.tracker_names == ["mpc_tracker", "landoff", "speed", "target"]
-    controllers_config = load_controllers_config(config.controllers_file)
+    controllers_config = config.controller_params
     for entry in config.controllers:     # each derives from the role's base class
         assert isinstance(build_controller(entry, controllers_config), Controller)
     for entry in config.trackers:
@@ -283,7 +283,7 @@ def test_the_documented_example_controller_registers_and_flies(tmp_path, monkeyp
         "controllers:\n  - {name: se3}\n  - {name: failsafe}\n"
         "  - {name: bandwidth, factory: 'my_controllers:make_bandwidth_controller'}\n"))
     check_control_manager_config(config)
-    controllers_config = load_controllers_config(config.controllers_file)
+    controllers_config = config.controller_params
     dut = build_controller(config.controllers[2], controllers_config)
     context = dut.CreateDefaultContext()
     dut.GetInputPort("state_estimate").FixValue(context, estimate([0.0, 0.0, 1.5]))

@@ -214,7 +214,7 @@ def test_nan_commands_in_flight_are_refused_and_the_vehicle_keeps_flying(vehicle
     flight = profile(TAKEOFF + "{duration: 3.0}")
     builder = DiagramBuilder()
     vehicle = builder.AddSystem(make_sim_vehicle(vehicle_config))
-    pilot = builder.AddSystem(ScriptedPilot(flight, pilot_model(vehicle_config)))
+    pilot = builder.AddSystem(ScriptedPilot(flight, pilot_model(vehicle_config.airframe)))
     injector = builder.AddSystem(NanInjector(TAKEOFF_END + 0.5, TAKEOFF_END + 0.9))
     builder.Connect(pilot.get_output_port(), injector.get_input_port())
     builder.Connect(injector.get_output_port(), vehicle.GetInputPort("fc_command"))

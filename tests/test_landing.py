@@ -2,8 +2,6 @@
 odometry): a seeded landing succeeds and is judged by the physics; campaigns resume and give the
 same runs on a Dask cluster as on the local pool."""
 
-import dataclasses as dc
-
 import numpy as np
 import pytest
 import yaml
@@ -11,7 +9,7 @@ import yaml
 from alight.diagrams.running.campaign import campaign_jobs, run_campaign, summarize
 from alight.diagrams.cli import main
 from alight.diagrams.analysis.landing import mission_transitions
-from alight.diagrams.running.landing import run_landing
+from alight.diagrams.running.runner import run as run_scenario
 from alight.diagrams.scenario import load_scenario
 from alight.diagrams.analysis.landing import score_landing
 from alight.diagrams.running.run_log import RunLog
@@ -36,7 +34,7 @@ def test_seeded_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     assert status == 0
     scenario = load_scenario("field")
     score = assert_landed(run, scenario, SPEED)
-    assert score.touchdown_speed < scenario.impact.vertical_speed
+    assert score.touchdown_speed < scenario.scoring.impact.vertical_speed
     assert (run.path / "mission.png").stat().st_size > 20_000   # like L Fig. 10
     assert (run.path / "paths.png").stat().st_size > 10_000     # like L Fig. 12
 
@@ -61,12 +59,13 @@ def test_target_swerving_in_landing_phase_2_is_scored_failed_by_the_physics(land
     mission, blind that close, still reaches Landed; the physics fails the landing."""
     _, run = landing
     p2 = next(t for t, mode, _ in mission_transitions(run) if mode == Mode.LANDING_P2)
-    scenario = dc.replace(load_scenario("field"), target_speed=SPEED,
-                          target_pull_times=[p2 + 0.1])
-    run = run_landing(scenario, seed=0, run_dir=tmp_path / "swerve")
+    scenario = load_scenario("field", overrides=[f"target_motion.speed: {SPEED}",
+                                                 f"target_motion.pull_times: [{p2 + 0.1}]"])
+    run = run_scenario(scenario, run_dir=tmp_path / "swerve")
     modes = run["mission_status"]["mode"]
     assert modes.iloc[-1] == Mode.LANDED
-    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
+    impact = scenario.scoring.impact
+    score = score_landing(run, impact.vertical_speed, impact.horizontal_speed)
     assert not score.success
     assert score.reason in ("slid off the platform", "touched the ground", "tipped over",
                             "not resting on the platform") or score.reason.startswith("impact")
@@ -75,7 +74,7 @@ def test_target_swerving_in_landing_phase_2_is_scored_failed_by_the_physics(land
 def _short_scenario(tmp_path):
     """The field scenario cut at 8 s (climbing): cheap campaign runs."""
     data = yaml.safe_load(model_path("scenario_field.yaml").read_text())
-    data["max_duration"] = 8.0
+    data["simulator"]["max_duration"] = 8.0
     path = tmp_path / "short.yaml"
     path.write_text(yaml.safe_dump(data))
     return str(path)

@@ -37,7 +37,7 @@ def test_seeded_managed_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     assert status == 0
     scenario = load_scenario("field")
     assert_landed(run, scenario, SPEED)
-    assert run.metadata["stack"] == "managed" and run.metadata["controller"] == "linear_mpc"
+    assert run.metadata["stack"] == "landing_managed" and run.metadata["controller"] == "linear_mpc"
 
 
 def test_the_modes_are_flown_by_the_trackers_the_control_manager_switches_to(landing):

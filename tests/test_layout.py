@@ -17,11 +17,14 @@ RULES = {
     "alight.diagrams.analysis": (*LOW, "alight.diagrams.running.run_log", "alight.hw.ulog",
                                  "alight.hw.frames"),
     "alight.diagrams.scenario": (*LOW, "alight.diagrams.world", "alight.diagrams.onboard"),
+    "alight.diagrams.stacks": (*LOW, "alight.diagrams.onboard", "alight.diagrams.scenario",
+                               *BASE),
     "alight.hw": (*LOW, "alight.hw", "alight.diagrams.world", "alight.diagrams.onboard",
-                  "alight.diagrams.scenario", *BASE),
+                  "alight.diagrams.scenario", "alight.diagrams.stacks", *BASE),
     "alight.diagrams.running": (*LOW, "alight.hw", "alight.diagrams.world",
                                 "alight.diagrams.onboard", "alight.diagrams.scenario",
-                                "alight.diagrams.running", "alight.diagrams.analysis"),
+                                "alight.diagrams.stacks", "alight.diagrams.running",
+                                "alight.diagrams.analysis"),
     "alight.diagrams.cli": ("alight",),
 }
 

@@ -150,7 +150,8 @@ def test_hil_land_finds_the_moving_target_through_the_channel_and_lands_on_it(tm
         assert mode in modes, modes
     # Judged by the autopilot's physics, as `alight land` is.
     scenario = load_scenario("scenario_field_hil.yaml")
-    score = score_landing(sim, scenario.impact.vertical_speed, scenario.impact.horizontal_speed,
+    impact = scenario.scoring.impact
+    score = score_landing(sim, impact.vertical_speed, impact.horizontal_speed,
                           mission_run=onboard)
     print(score.row())
     assert score.success, score.row()

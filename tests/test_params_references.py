@@ -56,5 +56,26 @@ def test_a_string_where_a_number_goes_names_the_file_and_key(tmp_path):
 def test_a_missing_referenced_file_names_the_key(tmp_path):
     outer = tmp_path / "outer.yaml"
     outer.write_text("inner: nowhere.yaml\n")
-    with pytest.raises(ConfigError, match=r"key 'inner' = 'nowhere.yaml'.*not found"):
+    with pytest.raises(ConfigError, match=r"key 'inner' = .*nowhere.yaml: parameter file not found"):
         load_params(Outer, outer)
+
+
+@dc.dataclass
+class Other:
+    rate: float = 1.0
+
+
+@dc.dataclass
+class WithUnion:
+    part: Inner | Other = dc.field(default_factory=Inner)
+
+
+def test_an_override_keeps_the_present_union_variant(tmp_path):
+    (tmp_path / "other.yaml").write_text("rate: 3.0\n")
+    params = load_params(WithUnion, data="part: !Other {rate: 2.0}\n",
+                         overrides=["part.rate: 5.0"])
+    assert params.part == Other(5.0)
+    params = load_params(WithUnion, data="part: !Other {rate: 2.0}\n",
+                         overrides=[f"part: {tmp_path / 'other.yaml'}"])
+    assert params.part == Other(3.0)
+    assert load_params(WithUnion, data="part: {gain: 2.0}\n").part == Inner(2.0)

@@ -1,12 +1,11 @@
 """The VIO closing the MPC loop on the geometric RGB-D camera (issue 8): a short waypoint flight,
 and the landing mission on the VIO."""
-import dataclasses as dc
 
 import numpy as np
 import pytest
 
 from alight.diagrams.running.flights import fly_waypoints
-from alight.diagrams.running.landing import run_landing
+from alight.diagrams.running.runner import run
 from alight.diagrams.scenario import load_scenario
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
 from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params
@@ -114,13 +113,14 @@ def test_the_landing_mission_on_vio_lands_on_the_moving_car(tmp_path):
     """Issue 8 closed loop: the field scenario at 2 m/s with `estimator: vio` (the forward RGB-D
     camera and the VIO instead of mocap, its frame at the surveyed take-off point), judged by the
     physics like every landing."""
-    scenario = dc.replace(load_scenario("field"), target_speed=2.0, estimator="vio")
-    run = run_landing(scenario, seed=0, run_dir=tmp_path / "land")
-    assert_landed(run, scenario, 2.0)
-    estimate = run["state_estimate"]
+    scenario = load_scenario("field", overrides=["target_motion.speed: 2.0",
+                                                 "onboard.estimator: vio"])
+    run_log = run(scenario, run_dir=tmp_path / "land")
+    assert_landed(run_log, scenario, 2.0)
+    estimate = run_log["state_estimate"]
     valid = estimate[estimate["valid"] > 0.5]
     t = valid["time"].to_numpy()
     error = np.linalg.norm(valid[["p_EB_0", "p_EB_1", "p_EB_2"]].to_numpy()
-                           - truth_at(run, t), axis=1)
+                           - truth_at(run_log, t), axis=1)
     assert np.median(error) < 0.15           # the VIO flew it (measured 0.06 m mean)
-    assert "vio_odometry" in run.streams
+    assert "vio_odometry" in run_log.streams

@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import add_landing_options, check_landing_stack
+from alight.diagrams.cli.options import LANDING_FLAGS, add_scenario_options, scenario_overrides
 
 NAME = "campaign"
 HELP = ("Monte Carlo landings per target speed (local processes or a Dask cluster), "
@@ -11,9 +11,10 @@ HELP = ("Monte Carlo landings per target speed (local processes or a Dask cluste
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(NAME, help=HELP, description=HELP)
-    add_landing_options(parser)
+    add_scenario_options(parser, "field", [f for f in LANDING_FLAGS if f != "target_speed"])
     parser.add_argument("--target-speeds", default="1.3,2,3,4,5,5.7", metavar="V,V,...")
-    parser.add_argument("--runs", type=int, default=20, help="runs per speed (seeds seed..)")
+    parser.add_argument("--runs", type=int, default=20,
+                        help="runs per speed (seeds --seed, --seed + 1, ...; default from 0)")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run on this Dask distributed scheduler instead (tcp://host:8786)")
@@ -39,13 +40,11 @@ def run(args) -> int:
               file=sys.stderr)
         return 2
     out = Path(args.out)
-    jobs = campaign_jobs(out, args.scenario, speeds, args.runs, args.seed, wind_kmh=args.wind,
-                         gusts=args.gusts, camera=args.camera, stack=args.stack,
-                         controller=args.controller, estimator=args.estimator)
+    seed, args.seed = args.seed or 0, None     # each job's seed is its own override
+    jobs = campaign_jobs(out, args.scenario, speeds, args.runs, seed, scenario_overrides(args))
     try:
-        check_landing_stack(args)
         scenario_for(jobs[0])          # a bad scenario or override stops here, not in a worker
-    except (ConfigError, FileNotFoundError) as e:
+    except ConfigError as e:
         print(f"alight campaign: {e}", file=sys.stderr)
         return 2
     rows = run_campaign(out, jobs, workers=args.workers, scheduler=args.scheduler)

@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import add_common, keep_meshcat_open, sim_vehicle_config
+from alight.diagrams.cli.options import VEHICLE_FLAGS, add_common, args_scenario, keep_meshcat_open
 
 NAME = "fly"
 HELP = ("take off, fly a trajectory through waypoints (or from a file) on the flight stack's "
@@ -11,7 +11,7 @@ HELP = ("take off, fly a trajectory through waypoints (or from a file) on the fl
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(NAME, help=HELP, description=HELP)
-    add_common(parser)
+    add_common(parser, flags=(*VEHICLE_FLAGS, "estimator"))
     parser.add_argument("--waypoints", metavar="'X,Y,Z; X,Y,Z; ...'",
                         help="waypoints in W [m], e.g. '0,0,5; 10,0,5; 10,10,3': a trajectory "
                              "through them is generated under the constraint group (M Sec. 6)")
@@ -29,12 +29,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="constraint group of the generated trajectory (slow, medium, fast)")
     parser.add_argument("--takeoff-height", type=float, default=2.0, metavar="M",
                         help="take-off height above the start [m] (default 2)")
-    parser.add_argument("--estimator", default="mocap", metavar="NAME",
-                        help="state estimate: 'mocap' (default), 'bank' (the arbiter chooses) or a "
-                             "filter of the bank (requested; the arbiter falls back if unreliable)")
-    parser.add_argument("--bank", default="estimator_bank.yaml", metavar="FILE.yaml",
-                        help="the estimator bank: sources, filters, arbiter (a path, or a file "
-                             "name in models/)")
+    parser.add_argument("--bank", metavar="FILE.yaml",
+                        help="the estimator bank of --estimator bank (sources, filters, arbiter; a "
+                             "path, or a file name in models/; sets onboard.estimator_bank)")
     parser.set_defaults(run=run)
     return parser
 
@@ -46,13 +43,15 @@ def run(args) -> int:
     from alight.systems.params import ConfigError
     try:
         plan = _flight_plan(args)
-        stack = _fly_stack(args)
+        scenario = args_scenario(args, [f"onboard.estimator_bank: {args.bank}"]
+                                 if args.bank else [])
+        stack = _fly_stack(args, scenario)
     except (ValueError, ConfigError) as e:
         print(f"alight fly: {e}", file=sys.stderr)
         return 2
-    config = sim_vehicle_config(args)
     meshcat = make_meshcat(args.meshcat, args.record)
-    run = fly_plan(plan, config, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
+    run = fly_plan(plan, scenario.vehicle, seed=scenario.random_seed, run_dir=args.run_dir,
+                   meshcat=meshcat,
                    record=args.record, realtime_rate=1.0 if args.meshcat else 0.0,
                    controller=args.controller, tracker=args.tracker, **stack)
     print("\n".join(summarize_managed_flight(run)))
@@ -78,22 +77,23 @@ def _flight_plan(args):
     return FlightPlan(samples=rows, sample_period=period, takeoff_height=args.takeoff_height)
 
 
-def _fly_stack(args) -> dict:
-    """The managed stack's options of `alight fly`: names checked against the YAML lists, the
-    estimator (mocap or the bank), the scheduled controller switches."""
-    from alight.diagrams.onboard.control_manager import load_control_manager_config, parse_switch
+def _fly_stack(args, scenario) -> dict:
+    """The managed stack's options of `alight fly`: the scenario's control manager, names
+    checked against its lists, the estimator (mocap or the bank), the scheduled controller
+    switches."""
+    from alight.diagrams.onboard.control_manager import parse_switch
     from alight.diagrams.onboard.estimation import scenario_odometry
     from alight.systems.params import ConfigError
-    config = load_control_manager_config()
+    config = scenario.onboard.control_manager
     for option, name, names in (("--controller", args.controller, config.names),
                                 ("--tracker", args.tracker, config.tracker_names)):
         if name is not None and name not in names:
             raise ConfigError(f"{option} {name!r} is not one of {names} "
-                              f"(models/control_manager.yaml)")
-    stack = {"schedule": [parse_switch(text, config.names)
-                          for text in args.switch_controller_at]}
-    odometry = scenario_odometry(args.estimator, args.bank, "alight fly --estimator",
-                                 anchored=False)
+                              f"(onboard.control_manager)")
+    stack = {"config": config, "schedule": [parse_switch(text, config.names)
+                                            for text in args.switch_controller_at]}
+    odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank,
+                                 "alight fly --estimator", anchored=False)
     if odometry is not None:
         stack.update(odometry=odometry, log=odometry.log)
     return stack

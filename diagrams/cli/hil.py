@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import frame_address, land_scenario
+from alight.diagrams.cli.options import add_scenario_options, args_scenario, frame_address
 
 NAME = "hil"
 HELP = "fly the onboard diagram against a MAVLink flight controller (real or simulated)"
@@ -16,17 +16,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="hover: scripted attitude/thrust profile; fly: --waypoints with the "
                              "linear MPC; land: the landing mission of --scenario (fly and land "
                              "read the simulated autopilot's mocap from the frame channel)")
-    parser.add_argument("--waypoints", default="0,0,2; 3,0,2", metavar="'X,Y,Z; ...'",
-                        help="waypoints of --mission fly in W [m]")
-    parser.add_argument("--scenario", default="field",
-                        help="landing scenario of --mission land (the same as the simulated "
-                             "autopilot's --scenario): its mission, MPC tuning, time limits")
-    parser.add_argument("--target-speed", type=float, metavar="V",
-                        help="with --mission land: the scenario's target speed in m/s")
-    parser.add_argument("--profile", default="hover_profile.yaml",
-                        help="pilot profile of --mission hover (a path, or a file name in models/)")
-    parser.add_argument("--config", default="sim_vehicle.yaml",
-                        help="the vehicle model the onboard side assumes (its airframe file)")
+    parser.add_argument("--waypoints", metavar="'X,Y,Z; ...'",
+                        help="waypoints of --mission fly in W [m] (sets mission.waypoints; "
+                             "default the scenario's, '0,0,2; 3,0,2')")
+    parser.add_argument("--profile", metavar="FILE.yaml",
+                        help="pilot profile of --mission hover (sets mission; a path, or a file "
+                             "name in models/)")
+    add_scenario_options(parser, None, ("config", "target_speed"), scenario_help=(
+        "the scenario whose onboard stack flies (default by --mission: hover, waypoints, "
+        "field; land: the same as the simulated autopilot's --scenario): its mission, "
+        "tunings, time limits"))
     parser.add_argument("--link-config", default="mavlink_vehicle.yaml",
                         help="MAVLink vehicle YAML (a path, or a file name in models/)")
     parser.add_argument("--duration", type=float, metavar="S",
@@ -43,31 +42,33 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--down-camera", metavar="DEVICE",
                         help="a real down camera through OpenCV (0, /dev/video0, a pipeline, a "
                              "video file), calibrated by models/down_camera.yaml")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random source")
     parser.add_argument("--run-dir", help="run folder to write (default runs/<time>-hil-<mission>)")
     parser.set_defaults(run=run)
     return parser
 
 
+# --mission: its default scenario and the stacks that fly it.
+MISSIONS = {"hover": ("hover", ("hover",)), "fly": ("waypoints", ("waypoints",)),
+            "land": ("field", ("landing", "landing_managed"))}
+
+
 def run(args) -> int:
     import logging
-    from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
     from alight.hw.connection import MavlinkConnectionError
-    from alight.hw.hil import MissionOptions, MissionUnavailable, run_hil
+    from alight.hw.hil import MissionUnavailable, run_hil
     from alight.hw.link import LinkTimeout
     from alight.hw.mavlink_vehicle import load_mavlink_vehicle_params
     from alight.hw.opencv_camera import CameraError
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     params = load_mavlink_vehicle_params(args.link_config)
     try:
-        options = MissionOptions(vehicle_config=load_sim_vehicle_config(args.config),
-                                 profile=args.profile, **_hil_mission_options(args))
-    except (ValueError, FileNotFoundError) as e:  # ConfigError is a ValueError
+        scenario = _hil_scenario(args)
+    except ValueError as e:  # ConfigError is a ValueError
         print(f"alight hil: {e}", file=sys.stderr)
         return 2
     try:
-        result = run_hil(args.connect, args.mission, options, params, duration=args.duration,
-                         seed=args.seed, run_dir=args.run_dir,
+        result = run_hil(args.connect, scenario, params, duration=args.duration,
+                         run_dir=args.run_dir,
                          frame_address=frame_address(args.frames, args.connect),
                          wait=args.wait, realtime_rate=args.realtime_rate,
                          follow_autopilot_clock=args.follow_autopilot_clock,
@@ -85,11 +86,22 @@ def run(args) -> int:
     return 1 if result.report.error else 0
 
 
-def _hil_mission_options(args) -> dict:
-    """The waypoints of --mission fly, the landing scenario of --mission land."""
-    if args.mission == "fly":
-        from alight.diagrams.onboard.waypoints import parse_waypoints
-        return {"waypoints": parse_waypoints(args.waypoints)}
-    if args.mission == "land":
-        return {"scenario": land_scenario(args)}
-    return {}
+def _hil_scenario(args):
+    """The scenario of --mission (or --scenario) with the waypoints of --mission fly, the
+    profile of --mission hover and the overrides; ValueError if they do not fit."""
+    from alight.diagrams.onboard.waypoints import parse_waypoints
+    default, stacks = MISSIONS[args.mission]
+    extra = []
+    if args.waypoints is not None:
+        if args.mission != "fly":
+            raise ValueError("--waypoints goes with --mission fly")
+        extra.append(f"mission.waypoints: {parse_waypoints(args.waypoints).tolist()}")
+    if args.profile is not None:
+        if args.mission != "hover":
+            raise ValueError("--profile goes with --mission hover")
+        extra.append(f"mission: {args.profile}")
+    scenario = args_scenario(args, extra, args.scenario or default)
+    if scenario.onboard.stack not in stacks:
+        raise ValueError(f"--mission {args.mission} flies the {' or '.join(stacks)} stack; the "
+                         f"scenario's onboard.stack is {scenario.onboard.stack!r}")
+    return scenario

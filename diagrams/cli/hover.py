@@ -1,7 +1,7 @@
 """`alight hover`: its options and what it runs (`HELP` says what it does)."""
 import argparse
 
-from alight.diagrams.cli.options import add_common, keep_meshcat_open, sim_vehicle_config
+from alight.diagrams.cli.options import add_common, args_scenario, keep_meshcat_open
 
 NAME = "hover"
 HELP = ("arm, take off on a scripted attitude/thrust profile, hover, land (no position "
@@ -10,22 +10,22 @@ HELP = ("arm, take off on a scripted attitude/thrust profile, hover, land (no po
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(NAME, help=HELP, description=HELP)
-    add_common(parser)
-    parser.add_argument("--profile", default="hover_profile.yaml",
-                        help="pilot profile YAML (a path, or a file name in models/)")
+    add_common(parser, "hover")
+    parser.add_argument("--profile", metavar="FILE.yaml",
+                        help="pilot profile YAML (a path, or a file name in models/; sets "
+                             "mission; default the scenario's, models/hover_profile.yaml)")
     parser.set_defaults(run=run)
     return parser
 
 
 def run(args) -> int:
-    from alight.diagrams.onboard.pilot import load_pilot_profile
-    from alight.diagrams.running.flights import run_hover
+    from alight.diagrams.analysis.flight import summarize_hover
+    from alight.diagrams.running.runner import run as run_scenario
     from alight.diagrams.running.simulation import make_meshcat
-    config = sim_vehicle_config(args)
-    profile = load_pilot_profile(args.profile)
+    scenario = args_scenario(args, [f"mission: {args.profile}"] if args.profile else [])
     meshcat = make_meshcat(args.meshcat, args.record)
-    summary = run_hover(config, profile, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
-                        record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
-    print("\n".join(summary.lines()))
+    run = run_scenario(scenario, run_dir=args.run_dir, meshcat=meshcat, record=args.record,
+                       realtime_rate=1.0 if args.meshcat else 0.0, command="hover")
+    print("\n".join(summarize_hover(run, scenario.mission).lines()))
     keep_meshcat_open(args)
     return 0

@@ -1,18 +1,80 @@
 """Options and helpers shared by the commands of the command line."""
 import argparse
+import dataclasses as dc
 import sys
+from typing import Callable
+
+import yaml
 
 
-def add_common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random source")
-    parser.add_argument("--config", default="sim_vehicle.yaml",
-                        help="simulated vehicle YAML (a path, or a file name in models/)")
-    parser.add_argument("--wind", type=float, metavar="KMH",
-                        help="mean wind speed in km/h (overrides the config)")
-    parser.add_argument("--wind-direction", type=float, metavar="DEG",
-                        help="direction the wind blows toward, degrees from x_W, counter-clockwise")
-    parser.add_argument("--gusts", type=float, metavar="M_S",
-                        help="gust standard deviation in m/s (horizontal)")
+@dc.dataclass(frozen=True)
+class Flag:
+    """A convenience flag: an override of one scenario key, declared once for every command
+    that takes it (same name, unit and meaning everywhere)."""
+    flag: str
+    key: str
+    help: str
+    type: Callable = float
+    metavar: str | None = None
+    choices: tuple | None = None
+    to_value: Callable = lambda value: value    # the flag's unit -> the key's
+
+    def add(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(self.flag, type=self.type, metavar=self.metavar,
+                            choices=self.choices, help=f"{self.help} (sets {self.key})")
+
+    def override(self, value) -> str:
+        return yaml.safe_dump({self.key: self.to_value(value)}, default_flow_style=True).strip()[
+            1:-1]
+
+
+LANDING_STACKS = {"direct": "landing", "managed": "landing_managed"}
+FLAGS = {flag.flag.lstrip("-").replace("-", "_"): flag for flag in (
+    Flag("--config", "vehicle", "simulated vehicle YAML (a path, or a file name in models/)",
+         str, "FILE.yaml"),
+    Flag("--target-speed", "target_motion.speed", "target speed in m/s", float, "V"),
+    Flag("--wind", "vehicle.wind.mean_speed", "mean wind speed in km/h", float, "KMH",
+         to_value=lambda kmh: kmh / 3.6),
+    Flag("--wind-direction", "vehicle.wind.direction",
+         "direction the wind blows toward, degrees from x_W, counter-clockwise", float, "DEG"),
+    Flag("--gusts", "vehicle.wind.gust_std", "gust standard deviation in m/s (horizontal)",
+         float, "M_S"),
+    Flag("--camera", "vehicle.down_camera.source", "down camera source", str,
+         choices=("geometric", "rendered")),
+    Flag("--estimator", "onboard.estimator", "odometry: mocap, vio (L Sec. 5.1, the forward "
+         "RGB-D camera), bank or a filter of the estimator bank", str, "NAME"),
+    Flag("--stack", "onboard.stack", "direct: the mission drives the linear MPC; managed: the "
+         "control manager with the landoff, MPC and target trackers", str,
+         choices=tuple(LANDING_STACKS), to_value=LANDING_STACKS.get),
+    Flag("--controller", "onboard.controller", "with --stack managed: the control manager's "
+         "controller that flies (linear_mpc, mpc, se3)", str, "NAME"))}
+VEHICLE_FLAGS = ("config", "wind", "wind_direction", "gusts")
+LANDING_FLAGS = ("target_speed", "wind", "wind_direction", "gusts", "camera", "estimator",
+                 "stack", "controller")
+
+
+def add_scenario_options(parser: argparse.ArgumentParser, scenario: str | None,
+                         flags=VEHICLE_FLAGS, scenario_help: str | None = None) -> None:
+    """--scenario (default `scenario`), the convenience `flags` of FLAGS, --set and --seed."""
+    parser.add_argument("--scenario", default=scenario, help=scenario_help or (
+        "scenario: a name (field, mbzirc, field_hil, waypoints, hover), a scenario YAML, or a "
+        "run folder's scenario.yaml to fly it again" + (f" (default {scenario})"
+                                                        if scenario else "")))
+    for name in flags:
+        FLAGS[name].add(parser)
+    parser.set_defaults(scenario_flags=tuple(flags))
+    parser.add_argument("--set", action="append", default=[], metavar="'KEY.SUB: VALUE'",
+                        help="override one scenario key with a YAML value (repeatable, applied "
+                             "after the flags), e.g. --set 'vehicle.wind.gust_std: 0.8'")
+    parser.add_argument("--seed", type=int,
+                        help="seed of every random source (sets random_seed; default the "
+                             "scenario's)")
+
+
+def add_common(parser: argparse.ArgumentParser, scenario: str = "waypoints",
+               flags=VEHICLE_FLAGS) -> None:
+    """The simulated vehicle's scenario options, a live view and the run folder."""
+    add_scenario_options(parser, scenario, flags)
     parser.add_argument("--meshcat", action="store_true",
                         help="show the flight live in Meshcat (prints the URL); runs in real time")
     parser.add_argument("--record", metavar="FILE.html",
@@ -20,19 +82,19 @@ def add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run-dir", help="run folder to write (default runs/<time>-<cmd>-s<seed>)")
 
 
-def sim_vehicle_config(args, config=None):
-    """`config` (default: the --config file) with the command line's wind overrides."""
-    from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
-    from alight.systems.params import validate
-    config = config or load_sim_vehicle_config(args.config)
-    if args.wind is not None:
-        config.wind.mean_speed = args.wind / 3.6
-    if args.wind_direction is not None:
-        config.wind.direction = args.wind_direction
-    if args.gusts is not None:
-        config.wind.gust_std = args.gusts
-    validate(config, "command line")
-    return config
+def scenario_overrides(args, extra=()) -> list[str]:
+    """The command line's overrides: its flags, `extra`, the seed, then every --set."""
+    overrides = [FLAGS[name].override(getattr(args, name)) for name in args.scenario_flags
+                 if getattr(args, name) is not None]
+    if getattr(args, "seed", None) is not None:
+        overrides.append(f"random_seed: {args.seed}")
+    return [*overrides, *extra, *args.set]
+
+
+def args_scenario(args, extra=(), scenario: str | None = None):
+    """The scenario the command line names, with its overrides (ConfigError if bad)."""
+    from alight.diagrams.scenario import load_scenario
+    return load_scenario(scenario or args.scenario, overrides=scenario_overrides(args, extra))
 
 
 def keep_meshcat_open(args) -> None:
@@ -47,42 +109,3 @@ def frame_address(value: str | None, url: str) -> str | None:
     if value == "none" or (value is None and url.startswith("serial:")):
         return None
     return value or default_frame_address(url.rsplit(":", 1)[-1])
-
-
-def land_scenario(args):
-    from alight.diagrams.running.campaign import CampaignJob, scenario_for
-    return scenario_for(CampaignJob(args.scenario, args.target_speed, args.seed, "",
-                                    getattr(args, "wind", None), getattr(args, "gusts", None),
-                                    getattr(args, "camera", None),
-                                    estimator=getattr(args, "estimator", None)))
-
-
-def check_landing_stack(args) -> None:
-    """--stack / --controller: raises ConfigError naming the allowed controllers."""
-    from alight.diagrams.onboard.landing_managed import landing_manager_config
-    from alight.systems.params import ConfigError
-    if args.stack == "managed":
-        landing_manager_config(args.controller)
-    elif args.controller != "linear_mpc":
-        raise ConfigError(f"--controller {args.controller}: the direct stack flies linear_mpc "
-                          f"only (use --stack managed)")
-
-
-def add_landing_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scenario", default="field",
-                        help="mbzirc, field, or a scenario YAML (a path, or a file in models/)")
-    parser.add_argument("--wind", type=float, metavar="KMH", help="mean wind speed in km/h")
-    parser.add_argument("--gusts", type=float, metavar="M_S",
-                        help="gust standard deviation in m/s")
-    parser.add_argument("--camera", choices=["geometric", "rendered"],
-                        help="down camera source (default: the scenario's)")
-    parser.add_argument("--estimator", metavar="NAME",
-                        help="odometry (default: the scenario's): mocap, vio (L Sec. 5.1, the "
-                             "forward RGB-D camera), bank or a filter of the estimator bank")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random source")
-    parser.add_argument("--stack", choices=["direct", "managed"], default="direct",
-                        help="direct: the mission drives the linear MPC (default); managed: the "
-                             "control manager with the landoff, MPC and target trackers")
-    parser.add_argument("--controller", default="linear_mpc", metavar="NAME",
-                        help="with --stack managed: the control manager's controller that flies "
-                             "(linear_mpc, mpc, se3)")

@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import add_common, frame_address, land_scenario, sim_vehicle_config
+from alight.diagrams.cli.options import VEHICLE_FLAGS, add_common, args_scenario, frame_address
 
 NAME = "sim-autopilot"
 HELP = "serve the simulated vehicle in real time as a PX4 autopilot over MAVLink"
@@ -10,7 +10,7 @@ HELP = "serve the simulated vehicle in real time as a PX4 autopilot over MAVLink
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(NAME, help=HELP, description=HELP)
-    add_common(parser)
+    add_common(parser, flags=(*VEHICLE_FLAGS, "target_speed"))
     parser.add_argument("--listen", default="udp:127.0.0.1:14540",
                         help="MAVLink endpoint (udp:HOST:PORT binds it; see docs/hardware.md)")
     parser.add_argument("--autopilot", default="sim_autopilot.yaml",
@@ -24,12 +24,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
                         help="slow the simulation to R x real time, R in (0, 1] (a loaded "
                              "machine; run `alight hil` with the same R)")
-    parser.add_argument("--scenario", metavar="NAME",
-                        help="simulate a landing scenario's world (field, mbzirc, or a YAML): "
-                             "its vehicle, moving target, down camera and wind (for `alight "
-                             "hil --mission land`); --wind/--gusts override its wind")
-    parser.add_argument("--target-speed", type=float, metavar="V",
-                        help="with --scenario: the target's speed in m/s")
     parser.set_defaults(run=run)
     return parser
 
@@ -40,22 +34,20 @@ def run(args) -> int:
     from alight.hw.connection import MavlinkConnectionError
     from alight.hw.sim_autopilot import load_sim_autopilot_params, run_sim_autopilot
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    config = None
-    if args.scenario:  # the landing scenario's world: target, down camera, wind
-        from alight.diagrams.scenario import vehicle_config
-        from alight.systems.params import ConfigError
-        try:
-            config = vehicle_config(land_scenario(args))
-        except (ConfigError, FileNotFoundError) as e:
-            print(f"alight sim-autopilot: {e}", file=sys.stderr)
-            return 2
-    config = sim_vehicle_config(args, config)
+    from alight.diagrams.scenario import vehicle_config
+    from alight.systems.params import ConfigError
+    try:   # a landing scenario's world: its target, down camera, wind (`alight hil --mission land`)
+        scenario = args_scenario(args)
+    except ConfigError as e:
+        print(f"alight sim-autopilot: {e}", file=sys.stderr)
+        return 2
+    config = vehicle_config(scenario)
     params = load_sim_autopilot_params(args.autopilot)
     frames = frame_address(args.frames, args.listen)
     meshcat = make_meshcat(args.meshcat, args.record)
     try:
         report, run_dir, stats = run_sim_autopilot(
-            args.listen, config, params, duration=args.duration, seed=args.seed,
+            args.listen, config, params, duration=args.duration, seed=scenario.random_seed,
             run_dir=args.run_dir, frame_address=frames, stats_file=args.stats, meshcat=meshcat,
             record=args.record, realtime_rate=args.realtime_rate, ready=lambda: print(
                 f"sim-autopilot: ready on {args.listen}" + (f", camera frames on {frames}"

@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import add_common, sim_vehicle_config
+from alight.diagrams.cli.options import add_common, args_scenario
 
 NAME = "sysid"
 HELP = "identify the linear model L(11)-(12) from excitation flights or a PX4 log"
@@ -25,12 +25,14 @@ def run(args) -> int:
     from alight.diagrams.analysis.sysid import identify_from_ulog
     from alight.diagrams.running.sysid import run_sysid
     from alight.systems.control.identification import IdentificationError
-    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("sysid", args.seed)
+    scenario = args_scenario(args)
+    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("sysid",
+                                                                      scenario.random_seed)
     try:
         if args.ulog:
             report = identify_from_ulog(Path(args.ulog), plot=run_dir / "ulog_validation.png")
         else:
-            report = run_sysid(sim_vehicle_config(args), seed=args.seed, run_dir=run_dir,
+            report = run_sysid(scenario.vehicle, seed=scenario.random_seed, run_dir=run_dir,
                                output=args.output)
     except IdentificationError as e:
         print(f"alight sysid: cannot identify: {e}", file=sys.stderr)

@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import add_common, sim_vehicle_config
+from alight.diagrams.cli.options import add_common, args_scenario
 
 NAME = "thrust-curve"
 HELP = "hover the simulated vehicle at several masses and fit the thrust curve M(32)"
@@ -21,17 +21,17 @@ def run(args) -> int:
     from pathlib import Path
     from alight.diagrams.running.paths import default_run_dir
     from alight.diagrams.running.thrust_curve import run_thrust_curve
-    from alight.systems.plant.hexacopter import load_hexacopter_params
     from alight.systems.thrust_curve import ThrustCurve
     masses = [float(m) for m in args.masses.split(",")]
     if len(masses) < 2 or min(masses) <= 0:
         print("alight thrust-curve: give at least two positive masses, e.g. 2.0,2.5,3.0",
               file=sys.stderr)
         return 2
-    config = sim_vehicle_config(args)
-    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("thrust-curve", args.seed)
-    fit = run_thrust_curve(config, masses, args.seed, run_dir)
-    rotors = load_hexacopter_params(config.vehicle)
+    scenario = args_scenario(args)
+    config, seed = scenario.vehicle, scenario.random_seed
+    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir("thrust-curve", seed)
+    fit = run_thrust_curve(config, masses, seed, run_dir)
+    rotors = config.airframe
     print("\n".join(fit.lines(ThrustCurve.from_rotors(len(rotors.rotors), rotors.max_thrust,
                                                       rotors.idle))))
     print(f"run folders           {run_dir}")

@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import add_common, keep_meshcat_open, sim_vehicle_config
+from alight.diagrams.cli.options import add_common, keep_meshcat_open, args_scenario
 
 NAME = "track"
 HELP = ("fly the flight-stack paper's experiments (steps, 5 m circle, estimator noise or "
@@ -44,9 +44,9 @@ def run(args) -> int:
         return 2
     from alight.systems.params import validate
     validate(experiment, "command line")
-    config = sim_vehicle_config(args)
+    scenario = args_scenario(args)
     meshcat = make_meshcat(args.meshcat, args.record)
-    run = fly_track(config, experiment, seed=args.seed, run_dir=args.run_dir, meshcat=meshcat,
+    run = fly_track(scenario.vehicle, experiment, seed=scenario.random_seed, run_dir=args.run_dir, meshcat=meshcat,
                     record=args.record, realtime_rate=1.0 if args.meshcat else 0.0)
     print("\n".join(score(run).lines()))
     print(f"run folder            {run.path} (plots: track.png)")

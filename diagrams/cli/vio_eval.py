@@ -2,7 +2,7 @@
 import argparse
 import sys
 
-from alight.diagrams.cli.options import add_common, sim_vehicle_config
+from alight.diagrams.cli.options import add_common, args_scenario
 
 NAME = "vio-eval"
 HELP = ("fly waypoints with the visual-inertial odometry (in the loop or beside mocap) and "
@@ -32,8 +32,9 @@ def run(args) -> int:
     except ValueError as e:
         print(f"alight vio-eval: {e}", file=sys.stderr)
         return 2
-    run = fly_vio(sim_vehicle_config(args), waypoints, args.seed,
-                  args.run_dir or default_run_dir("vio-eval", args.seed),
+    scenario = args_scenario(args)
+    run = fly_vio(scenario.vehicle, waypoints, scenario.random_seed,
+                  args.run_dir or default_run_dir("vio-eval", scenario.random_seed),
                   closed_loop=not args.open_loop, camera=load_rgbd_camera_params(args.camera))
     for key, value in evaluate_vio(run).items():
         print(f"{key:16s}{value:.4g}" if isinstance(value, float) else f"{key:16s}{value}")

@@ -22,7 +22,7 @@ from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONT
                                      TRACKER_STATUS)
 from alight.systems.managers.control_manager import (MANAGER_STATUS, ControlManager,
                                                      EmergencyParams, SafetyArea)
-from alight.systems.params import ConfigError, bounded, load_params
+from alight.systems.params import ConfigError, bounded, load_params, param_file
 from alight.systems.tracking.landoff_tracker import make_landoff_tracker
 from alight.systems.tracking.mpc_tracker import make_mpc_tracker
 from alight.systems.tracking.speed_tracker import make_speed_tracker
@@ -62,7 +62,7 @@ class TrackerEntry:
 @dc.dataclass
 class ControlManagerConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")
-    controllers_file: str = "controllers.yaml"
+    controller_params: ControllersConfig = param_file(ControllersConfig, "controllers.yaml")
     controllers: list[ControllerEntry] = dc.field(default_factory=lambda: [
         ControllerEntry(name) for name in ("se3", "mpc", "failsafe")])
     initial_controller: str = "se3"

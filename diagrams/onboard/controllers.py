@@ -10,7 +10,7 @@ from alight.systems.control.linear_mpc import LinearMpc, LinearMpcParams
 from alight.systems.control.mpc_force import MpcForceController, MpcForceParams
 from alight.systems.control.se3 import Se3Controller, Se3Params
 from alight.systems.control.so3 import So3Params
-from alight.systems.params import bounded, load_params
+from alight.systems.params import bounded, load_params, param_file
 
 CONTROLLERS = ("se3", "mpc", "failsafe", "linear_mpc")
 
@@ -27,8 +27,8 @@ class ControllersConfig:
     failsafe: FailsafeParams = dc.field(default_factory=FailsafeParams)
     # The landing paper's linear MPC (L Sec. 6.1-6.2, attitude + thrust, 20 Hz) as a controller
     # of the control manager: its tuning and identified model (models/).
-    linear_mpc: str = "linear_mpc.yaml"
-    linear_model: str = "linear_model.yaml"
+    linear_mpc: LinearMpcParams = param_file(LinearMpcParams, "linear_mpc.yaml")
+    linear_model: LinearModelParams = param_file(LinearModelParams, "linear_model.yaml")
 
 
 def load_controllers_config(filename: str = "controllers.yaml") -> ControllersConfig:
@@ -48,6 +48,5 @@ def make_controller(name: str, config: ControllersConfig):
     if name == "failsafe":
         return FailsafeController(config.vehicle, config.failsafe, config.period)
     if name == "linear_mpc":
-        return LinearMpc(load_params(LinearModelParams, model_path(config.linear_model)),
-                         load_params(LinearMpcParams, model_path(config.linear_mpc)))
+        return LinearMpc(config.linear_model, config.linear_mpc)
     raise ValueError(f"unknown controller {name!r}: expected one of {list(CONTROLLERS)}")

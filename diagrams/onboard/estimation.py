@@ -54,17 +54,17 @@ def add_sampled_sensor(builder, name: str, sensor, latency: float, ground_truth_
 
 
 def _sampled(schema, system):
-    def build(builder, name, filename, ground_truth_port):
-        params = filename if isinstance(filename, schema) else \
-            load_params(schema, model_path(filename)) if filename else schema()
+    def build(builder, name, params, ground_truth_port):
+        params = load_params(schema, model_path(params)) if isinstance(params, str) else \
+            params or schema()
         return add_sampled_sensor(builder, name, system(params), params.latency,
                                   ground_truth_port)
     return build
 
 
-def _mocap(builder, name, filename, ground_truth_port):
-    params = filename if isinstance(filename, MocapParams) else \
-        load_params(MocapParams, model_path(filename)) if filename else MocapParams()
+def _mocap(builder, name, params, ground_truth_port):
+    params = load_params(MocapParams, model_path(params)) if isinstance(params, str) else \
+        params or MocapParams()
     return add_mocap(builder, ground_truth_port, params, name=name)
 
 
@@ -159,24 +159,24 @@ class BankOdometry:
 ESTIMATORS = ("mocap", "bank")   # besides the bank's filter names
 
 
-def scenario_odometry(estimator: str, bank_file: str = "estimator_bank.yaml",
-                      where: str = "<scenario>", anchored: bool = True,
-                      others: tuple = ()) -> "BankOdometry | None":
-    """The `odometry` hook a scenario's `estimator:` entry names: None for `mocap` (the stacks'
-    default), `BankOdometry` on the bank of `bank_file` for `bank` (its arbiter) or one of its
-    filters (requested for the whole run); `anchored` for the landing mission's state machine,
-    which keeps its waypoint and reference in E and does not re-express them on frame switches
-    (the managed stack of `alight fly` does: anchored=False). Raises ConfigError naming `where`
-    and the key for anything else (`others`: names the caller handles, for the message)."""
+def scenario_odometry(estimator: str, bank: BankParams, where: str = "<scenario>",
+                      anchored: bool = True, others: tuple = (),
+                      key: str = "estimator") -> "BankOdometry | None":
+    """The `odometry` hook a scenario's `estimator:` entry names: None for `mocap` (the caller's
+    mocap), `BankOdometry` on `bank` for `bank` (its arbiter) or one of its filters (requested
+    for the whole run); `anchored` for the landing mission's state machine, which keeps its
+    waypoint and reference in E and does not re-express them on frame switches (the managed
+    stack of `alight fly` does: anchored=False). Raises ConfigError naming `where` and the key
+    for anything else (`others`: names the caller handles, for the message; `key`: the
+    estimator's key in the caller's configuration)."""
     if estimator == "mocap":
         return None
-    params = load_bank_params(bank_file)
-    names = [f.name for f in params.filters]
+    names = [f.name for f in bank.filters]
     if estimator != "bank" and estimator not in names:
-        raise ConfigError(f"{where}: key 'estimator' = {estimator!r} must be one of "
+        raise ConfigError(f"{where}: key '{key}' = {estimator!r} must be one of "
                           f"{[*ESTIMATORS, *others, *names]} (the last ones: the filters of "
-                          f"{bank_file})")
-    return BankOdometry(params, request=None if estimator == "bank" else estimator,
+                          f"the estimator bank)")
+    return BankOdometry(bank, request=None if estimator == "bank" else estimator,
                         anchored=anchored)
 
 

@@ -1,19 +1,20 @@
 """The onboard landing stack (L Sec. 6-7) on any vehicle's boundary ports (the simulated or the
 MAVLink vehicle): odometry, target perception, the mission state machine L Sec. 6.4 with its
-reference generation L Sec. 6.3, the linear MPC (`add_landing_onboard`). `alight hil --mission land`
-puts it on the MAVLink vehicle (hw/hil.py). `scenario` is a diagrams/scenario.py LandingScenario
-(onboard/ does not import it: the scenario is built from onboard parts)."""
+reference generation L Sec. 6.3, the linear MPC (`add_landing_onboard`). diagrams/stacks.py builds
+it from a scenario, on the simulated vehicle (`alight land`) or the MAVLink one (`alight hil`)."""
 import dataclasses as dc
 
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.onboard.mpc_loop import (MpcLoop, add_mpc_control, add_mpc_logging,
-                                              load_linear_mpc)
+from alight.diagrams.onboard.mpc_loop import MpcLoop, add_mpc_control, add_mpc_logging
 from alight.diagrams.onboard.perception import TargetPerceptionPorts, add_target_perception
 from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.running.simulation import DisarmedAfter, evaluate
 from alight.systems.boundary import TARGET_ESTIMATE
-from alight.systems.mission.landing import MISSION_STATUS, LandingMission, Mode
+from alight.systems.control.linear_model import LinearModelParams
+from alight.systems.control.linear_mpc import LinearMpcParams
+from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
+                                            Mode)
 from alight.systems.sensors.camera_faults import CameraBlackout
 
 
@@ -37,13 +38,13 @@ def landed_and_disarmed(mission: LandingMission, vehicle, settle_time: float) ->
         mission, "mission_status", context), "mode") == Mode.LANDED, vehicle, settle_time)
 
 
-def add_down_camera_perception(builder: DiagramBuilder, scenario, vehicle,
-                               state_estimate) -> TargetPerceptionPorts:
-    """Target perception on `vehicle`'s `down_image` with the scenario's camera blackouts."""
+def add_down_camera_perception(builder: DiagramBuilder, vehicle, state_estimate,
+                               camera_blackouts=()) -> TargetPerceptionPorts:
+    """Target perception on `vehicle`'s `down_image`, blanked in the `camera_blackouts` windows
+    [[start, end], ...] s (a sensor fault, simulation only)."""
     image = vehicle.GetOutputPort("down_image")
-    if scenario.camera_blackouts:
-        blackout = builder.AddNamedSystem("camera_blackout",
-                                          CameraBlackout(scenario.camera_blackouts))
+    if camera_blackouts:
+        blackout = builder.AddNamedSystem("camera_blackout", CameraBlackout(camera_blackouts))
         builder.Connect(image, blackout.get_input_port())
         image = blackout.get_output_port()
     return add_target_perception(builder, image, state_estimate)
@@ -57,20 +58,22 @@ def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: L
     loggers.add(builder, "target_estimate", target_estimate, TARGET_ESTIMATE, period=period)
 
 
-def add_landing_onboard(builder: DiagramBuilder, scenario, vehicle,
-                        odometry=None) -> LandingOnboard:
+def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
+                        mpc_params: LinearMpcParams, model: LinearModelParams, odometry,
+                        camera_blackouts=()) -> LandingOnboard:
     """The onboard landing stack on `vehicle`'s boundary ports (the simulated or the MAVLink
-    vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, odometry and
-    the linear MPC (`add_mpc_control`), target perception on `down_image` (with the scenario's
-    camera blackouts) and the run logging. `odometry` as in `add_mpc_control`."""
-    mission = builder.AddNamedSystem("mission", LandingMission(scenario.mission))
+    vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, `odometry` and
+    the linear MPC (`add_mpc_control`), target perception on `down_image` (with
+    `camera_blackouts`) and the run logging."""
+    mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
     loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
                            mission.GetOutputPort("arm"), odometry=odometry,
-                           mpc_params=load_linear_mpc(scenario.mpc))
-    perception = add_down_camera_perception(builder, scenario, vehicle, loop.state_estimate_port)
+                           mpc_params=mpc_params, model=model)
+    perception = add_down_camera_perception(builder, vehicle, loop.state_estimate_port,
+                                            camera_blackouts)
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))
     builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
     loggers = add_mpc_logging(builder, loop, mission.GetOutputPort("reference"))
     add_mission_logging(builder, loggers, mission, perception.target_estimate,
-                        scenario.mission.period)
+                        mission_params.period)
     return LandingOnboard(mission, loop, perception, loggers)

@@ -7,8 +7,7 @@ controller of the control manager (the landing paper's `linear_mpc` by default, 
 `se3`); the mission's arm request [arm, thrust enable] is the control manager's `arm` input
 (Landed disarms).
 
-`alight land --stack managed [--controller NAME]` runs it (diagrams/running/landing.py
-`run_landing`).
+`alight land --set 'onboard.stack: landing_managed' [--controller NAME]` runs it (diagrams/stacks.py).
 """
 import dataclasses as dc
 
@@ -16,16 +15,14 @@ from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.onboard.control_manager import (ControlManagerConfig, ManagedControllers,
                                                      add_control_manager, add_managed_logging,
-                                                     connect_managed_vehicle,
-                                                     load_control_manager_config)
-from alight.diagrams.onboard.controllers import load_controllers_config
+                                                     connect_managed_vehicle)
 from alight.diagrams.onboard.landing import (add_down_camera_perception, add_mission_logging,
                                              landed_and_disarmed)
-from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.diagrams.onboard.perception import TargetPerceptionPorts
 from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.running.simulation import DisarmedAfter
-from alight.systems.mission.landing import LandingMission
+from alight.systems.control.linear_mpc import LinearMpcParams
+from alight.systems.mission.landing import LandingMission, LandingMissionParams
 from alight.systems.mission.landing_requests import LandingRequests
 from alight.systems.params import ConfigError
 
@@ -50,12 +47,10 @@ class LandingManagedOnboard:
         return landed_and_disarmed(self.mission, self.vehicle, settle_time)
 
 
-def landing_manager_config(controller: str = "linear_mpc",
-                           config: ControlManagerConfig | None = None) -> ControlManagerConfig:
-    """The control manager's YAML (models/control_manager.yaml) flying `controller` from the
-    start with the take-off tracker selected; raises ConfigError when `controller` is not one of
-    the listed controllers or the trackers of `LandingRequests` are not listed."""
-    config = config or load_control_manager_config()
+def landing_manager_config(controller: str, config: ControlManagerConfig) -> ControlManagerConfig:
+    """The control manager `config` flying `controller` from the start with the take-off tracker
+    selected; raises ConfigError when `controller` is not one of the listed controllers or the
+    trackers of `LandingRequests` are not listed."""
     if controller not in config.names or controller == config.failsafe_controller:
         allowed = [name for name in config.names if name != config.failsafe_controller]
         raise ConfigError(f"landing controller {controller!r} is not one of the control "
@@ -68,22 +63,22 @@ def landing_manager_config(controller: str = "linear_mpc",
                       initial_tracker=LANDING_TRACKERS[0])
 
 
-def add_landing_managed(builder: DiagramBuilder, scenario, vehicle,
-                        odometry=None, controller: str = "linear_mpc",
-                        config: ControlManagerConfig | None = None) -> LandingManagedOnboard:
-    """The landing mission on the managed stack, on `vehicle`'s boundary ports (simulated or
-    MAVLink). `odometry` as in diagrams/onboard/mpc_loop.py `add_mpc_control` (default mocap); the linear
-    MPC takes the scenario's tuning (`scenario.mpc`)."""
+def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
+                        config: ControlManagerConfig, controller: str,
+                        mpc_params: LinearMpcParams, odometry,
+                        camera_blackouts=()) -> LandingManagedOnboard:
+    """The landing mission on the managed stack `config` flown by `controller`, on `vehicle`'s
+    boundary ports (simulated or MAVLink); `odometry` as in diagrams/onboard/mpc_loop.py
+    `add_mpc_control`; the linear MPC controller takes `mpc_params` (the landing tuning)."""
     config = landing_manager_config(controller, config)
-    controllers_config = dc.replace(load_controllers_config(config.controllers_file),
-                                    linear_mpc=scenario.mpc)
-    estimate = (odometry or mocap_odometry())(builder, vehicle)
-    perception = add_down_camera_perception(builder, scenario, vehicle, estimate)
-    mission = builder.AddNamedSystem("mission", LandingMission(scenario.mission))
+    controllers_config = dc.replace(config.controller_params, linear_mpc=mpc_params)
+    estimate = odometry(builder, vehicle)
+    perception = add_down_camera_perception(builder, vehicle, estimate, camera_blackouts)
+    mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
     builder.Connect(estimate, mission.GetInputPort("state_estimate"))
     builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
     requests = builder.AddNamedSystem("landing_requests", LandingRequests(
-        scenario.mission, config.tracker_names, *LANDING_TRACKERS))
+        mission_params, config.tracker_names, *LANDING_TRACKERS))
     builder.Connect(mission.GetOutputPort("mission_status"),
                     requests.GetInputPort("mission_status"))
     builder.Connect(mission.GetOutputPort("arm"), requests.GetInputPort("arm"))
@@ -98,6 +93,6 @@ def add_landing_managed(builder: DiagramBuilder, scenario, vehicle,
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
                                   mission.GetOutputPort("reference"), config.period)
     add_mission_logging(builder, loggers, mission, perception.target_estimate,
-                        scenario.mission.period)
+                        mission_params.period)
     return LandingManagedOnboard(vehicle, estimate, mission, requests, managed, perception,
                                  loggers)

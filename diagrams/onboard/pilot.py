@@ -2,23 +2,22 @@
 through take-off, hover and landing on an attitude/thrust profile (no position controller)."""
 
 
+from pydrake.multibody.plant import MultibodyPlant
+
 from alight.diagrams.running.run_log import RunLoggers, add_run_logging
 from alight.models import model_path
 from alight.systems.control.scripted_pilot import PilotModel, PilotProfile, ScriptedPilot
 from alight.systems.params import load_params
-from alight.systems.plant.hexacopter import load_hexacopter_params
+from alight.systems.plant.hexacopter import HexacopterParams, add_hexacopter, airframe
 
 
 def load_pilot_profile(filename: str = "hover_profile.yaml") -> PilotProfile:
     return load_params(PilotProfile, model_path(filename))
 
 
-def pilot_model(config) -> PilotModel:
-    """The pilot's knowledge of the vehicle: mass, thrust curve and vertical drag of its model
-    (`config.vehicle`, the airframe file of a SimVehicleConfig)."""
-    from pydrake.multibody.plant import MultibodyPlant
-    from alight.systems.plant.hexacopter import add_hexacopter, airframe
-    params = load_hexacopter_params(config.vehicle)
+def pilot_model(params: HexacopterParams) -> PilotModel:
+    """The pilot's knowledge of the vehicle: mass, thrust curve and vertical drag of its airframe
+    model (a SimVehicleConfig's `airframe`)."""
     plant = MultibodyPlant(0.0)
     add_hexacopter(plant, params)
     plant.Finalize()

@@ -11,7 +11,7 @@ from alight.diagrams.onboard.control_manager import (GOAL_KINDS, ControlManagerC
                                                      ManagedControllers, add_control_manager,
                                                      add_managed_logging, connect_managed_vehicle,
                                                      load_control_manager_config)
-from alight.diagrams.onboard.controllers import ControllersConfig, load_controllers_config
+from alight.diagrams.onboard.controllers import ControllersConfig
 from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.diagrams.running.run_log import RunLoggers
 from alight.models import model_path
@@ -47,7 +47,7 @@ def add_managed_onboard(builder, vehicle, config: ControlManagerConfig | None = 
     timed controller switches; `estimate_filter(builder, port) -> port` may alter the estimate
     (fault injection in tests). Exports the UAV manager's command input as `uav_command`."""
     config = config or load_control_manager_config()
-    controllers_config = controllers_config or load_controllers_config(config.controllers_file)
+    controllers_config = controllers_config or config.controller_params
     estimate = (odometry or mocap_odometry())(builder, vehicle)
     if estimate_filter is not None:
         estimate = estimate_filter(builder, estimate)

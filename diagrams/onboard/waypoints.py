@@ -7,6 +7,8 @@ import numpy as np
 from alight.diagrams.onboard.mpc_loop import MpcLoop, add_mpc_control, add_mpc_logging
 from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.running.simulation import DisarmedAfter, evaluate
+from alight.systems.control.linear_model import LinearModelParams
+from alight.systems.control.linear_mpc import LinearMpcParams
 from alight.systems.mission.waypoints import Phase, WaypointMission, WaypointMissionParams
 
 
@@ -35,14 +37,14 @@ class WaypointOnboard:
 
 
 def add_waypoint_onboard(builder, vehicle, waypoints: np.ndarray,
-                         mission: WaypointMissionParams | None = None,
-                         odometry=None) -> WaypointOnboard:
-    """The onboard side of `alight fly` on `vehicle`'s boundary ports (simulated or MAVLink):
-    the waypoint mission, odometry and the linear MPC (`add_mpc_control`), and their logging."""
-    mission_system = builder.AddNamedSystem("mission", WaypointMission(
-        waypoints, mission or WaypointMissionParams()))
+                         mission: WaypointMissionParams, odometry, mpc_params: LinearMpcParams,
+                         model: LinearModelParams) -> WaypointOnboard:
+    """The onboard side of a waypoint flight on `vehicle`'s boundary ports (simulated or
+    MAVLink): the waypoint mission, `odometry` and the linear MPC (`add_mpc_control`), and their
+    logging."""
+    mission_system = builder.AddNamedSystem("mission", WaypointMission(waypoints, mission))
     loop = add_mpc_control(builder, vehicle, mission_system.GetOutputPort("reference"),
-                           mission_system.GetOutputPort("arm"), odometry=odometry)
+                           mission_system.GetOutputPort("arm"), mpc_params, model, odometry)
     builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
     loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
     return WaypointOnboard(mission_system, loop, loggers)

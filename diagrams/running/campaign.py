@@ -5,11 +5,16 @@ interrupted campaign keeps its finished runs and a second call resumes), summari
 the form of L Table 1.
 """
 import dataclasses as dc
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from alight.diagrams.analysis.landing import score_landing
+from alight.diagrams.running.runner import run
+from alight.diagrams.scenario import Scenario, load_scenario
 
 COLUMNS = ["target_speed_setting", "seed", "success", "reason", "target_speed", "e_xy",
            "tracking_duration", "mission_time", "touchdown_speed", "wall_time", "run_dir"]
@@ -17,57 +22,37 @@ COLUMNS = ["target_speed_setting", "seed", "success", "reason", "target_speed", 
 
 @dc.dataclass(frozen=True)
 class CampaignJob:
-    """One mission: the scenario (name or file) with its overrides, and where to write it."""
+    """One mission: a scenario (name or file) with its overrides ('key.sub: value' each) and
+    seed, the target speed it is tabled under, and where to write its run folder."""
     scenario: str
-    target_speed: float | None   # None: the scenario's
+    overrides: tuple[str, ...]
     seed: int
+    target_speed: float
     run_dir: str
-    wind_kmh: float | None = None
-    gusts: float | None = None
-    camera: str | None = None
-    stack: str = "direct"           # run_landing's: direct (linear MPC) or managed
-    controller: str = "linear_mpc"  # the managed stack's controller
-    estimator: str | None = None    # the scenario's odometry: mocap, vio, bank, a bank filter
 
 
-def scenario_for(job: CampaignJob):
-    """The job's scenario with its overrides applied (and validated)."""
-    from alight.diagrams.scenario import check_estimator, load_scenario
-    from alight.systems.params import validate
-    scenario = load_scenario(job.scenario)
-    if job.target_speed is not None:
-        scenario = dc.replace(scenario, target_speed=job.target_speed)
-    wind = scenario.wind
-    if job.wind_kmh is not None:
-        wind = dc.replace(wind, mean_speed=job.wind_kmh / 3.6)
-    if job.gusts is not None:
-        wind = dc.replace(wind, gust_std=job.gusts)
-    scenario = dc.replace(scenario, wind=wind, camera=job.camera or scenario.camera,
-                          estimator=job.estimator or scenario.estimator)
-    validate(scenario, "campaign job")
-    check_estimator(scenario, "--estimator")
-    return scenario
+def scenario_for(job: CampaignJob) -> Scenario:
+    """The job's scenario: its overrides and seed applied, validated."""
+    return load_scenario(job.scenario, overrides=[*job.overrides, f"random_seed: {job.seed}"])
 
 
 def run_job(job: CampaignJob) -> dict:
     """Flies and scores one mission (runs in a worker process); returns its table row."""
-    import time
-
-    from alight.diagrams.running.landing import run_landing
-    from alight.diagrams.analysis.landing import score_landing
     start = time.perf_counter()
     scenario = scenario_for(job)
-    run = run_landing(scenario, seed=job.seed, run_dir=job.run_dir, stack=job.stack,
-                      controller=job.controller)
-    score = score_landing(run, scenario.impact.vertical_speed, scenario.impact.horizontal_speed)
+    run_log = run(scenario, run_dir=job.run_dir, command="campaign")
+    score = score_landing(run_log, scenario.scoring.impact.vertical_speed,
+                          scenario.scoring.impact.horizontal_speed)
     return {"target_speed_setting": job.target_speed, "seed": job.seed, **dc.asdict(score),
             "wall_time": time.perf_counter() - start, "run_dir": job.run_dir}
 
 
 def campaign_jobs(out_dir: Path, scenario: str, speeds, runs: int, seed: int = 0,
-                  **overrides) -> list[CampaignJob]:
-    return [CampaignJob(scenario, float(v), seed + i,
-                        str(Path(out_dir) / "runs" / f"v{float(v):.1f}_s{seed + i}"), **overrides)
+                  overrides=()) -> list[CampaignJob]:
+    """`runs` seeds from `seed` per target speed (`target_motion.speed`), each with `overrides`."""
+    return [CampaignJob(str(scenario), (*overrides, f"target_motion.speed: {float(v)}"),
+                        seed + i, float(v),
+                        str(Path(out_dir) / "runs" / f"v{float(v):.1f}_s{seed + i}"))
             for v in speeds for i in range(runs)]
 
 

@@ -17,15 +17,16 @@ from alight.diagrams.onboard.estimation import BankOdometry
 from alight.diagrams.onboard.landoff import LANDED, add_landoff_loop
 from alight.diagrams.onboard.mpc_loop import (MpcLoop, add_mpc_control, add_mpc_logging,
                                               load_linear_model, load_linear_mpc)
-from alight.diagrams.onboard.pilot import add_pilot_onboard, pilot_model
 from alight.diagrams.onboard.track import add_faulty_mocap
 from alight.diagrams.onboard.uav import FlightPlan, load_uav_manager_params
 from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params
-from alight.diagrams.onboard.waypoints import add_waypoint_onboard, mission_duration
 from alight.diagrams.running.mission import Mission
 from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.running.runner import run
 from alight.diagrams.running.simulation import simulate
+from alight.diagrams.scenario import (Onboard, Scenario, Scoring, SimulatorSettings,
+                                      WaypointPlan)
 from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.control import analytic_reference as ref
@@ -53,28 +54,26 @@ def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, me
                            odometry, estimate_filter)
 
 
+def vehicle_scenario(config: SimVehicleConfig, stack: str, mission, seed: int = 0,
+                     max_duration: float = 300.0, settle_time: float = 1.0) -> Scenario:
+    """A scenario of the simulated vehicle `config` flying `stack` on mocap (tests, benches)."""
+    return Scenario(name=stack, random_seed=seed, vehicle=config,
+                    onboard=Onboard(stack=stack, linear_mpc=load_linear_mpc(),
+                                    linear_model=load_linear_model()),
+                    mission=mission, scoring=Scoring(settle_time=settle_time),
+                    simulator=SimulatorSettings(max_duration=max_duration))
+
+
 def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0,
                   run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
                   mission: WaypointMissionParams | None = None, max_duration: float = 300.0,
-                  odometry=None, log=None) -> RunLog:
-    """Takes off, visits the waypoints with the linear MPC, lands and disarms (`odometry` as in
-    `add_mpc_control`; `log(builder, loggers)` may add streams of its own, e.g. the VIO's)."""
-    builder = DiagramBuilder()
-    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
-    onboard = add_waypoint_onboard(builder, vehicle, waypoints, mission, odometry)
-    if log is not None:
-        log(builder, onboard.loggers)
-    diagram = builder.Build()
-    done = onboard.finished(rest=1.0)  # 1 s after landing, so that the logs show it at rest
-    simulator = simulate(diagram, mission_duration(waypoints, max_duration), seed, meshcat,
-                         record, realtime_rate, stop_when=done)
-    duration = simulator.get_context().get_time()
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("fly", seed)
-    write_run_folder(run_dir, onboard.loggers, simulator, {
-        "command": "fly", "seed": seed, "duration": duration, "config": config,
-        "waypoints": waypoints, "landed": done.holds(simulator.get_context()),
-        "mpc": load_linear_mpc(), "model": load_linear_model()})
-    return RunLog(run_dir)
+                  odometry=None) -> RunLog:
+    """Takes off, visits the waypoints with the linear MPC, lands and disarms, stopping 1 s
+    after (so that the logs show it at rest): the `waypoints` stack through the runner
+    (`odometry` as in `add_mpc_control`, default mocap; its own streams are logged)."""
+    plan = WaypointPlan(np.asarray(waypoints, float).tolist(), mission or WaypointMissionParams())
+    return run(vehicle_scenario(config, "waypoints", plan, seed, max_duration), run_dir, meshcat,
+               record, realtime_rate, odometry, command="fly")
 
 
 def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: int = 0,
@@ -114,31 +113,25 @@ def fly_vio(config, waypoints, seed: int = 0, run_dir=None, closed_loop: bool = 
             blackouts=None):
     """Flies `waypoints` (`fly_waypoints`) with the VIO on the forward camera (`camera`, default
     models/rgbd_camera.yaml) in the loop, or beside mocap (`closed_loop=False`)."""
-    config.rgbd_camera = camera or load_rgbd_camera_params()
+    config = dc.replace(config, rgbd_camera=camera or load_rgbd_camera_params())
     if config.rgbd_camera.source == "none":
         raise ValueError("the VIO needs the forward RGB-D camera: rgbd_camera.source is none")
-    vio = VioRun(params, closed_loop, blackouts)
-    return fly_waypoints(config, np.asarray(waypoints, float), seed=seed, run_dir=run_dir,
-                         odometry=vio, log=vio.log)
+    return fly_waypoints(config, waypoints, seed=seed, run_dir=run_dir,
+                         odometry=VioRun(params, closed_loop, blackouts))
 
 
 def fly_profile(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
                 run_dir: str | Path | None = None, meshcat=None, record=None,
                 realtime_rate: float = 0.0, duration: float | None = None,
                 pilot_stops_at: float | None = None, command: str = "hover") -> RunLog:
-    """Flies `profile` with the scripted pilot on the simulated vehicle; returns the run log.
-    `pilot_stops_at` freezes the pilot's output from that time (a companion computer that dies)."""
-    builder = DiagramBuilder()
-    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
-    loggers = add_pilot_onboard(builder, vehicle, profile, pilot_model(config), pilot_stops_at)
-    diagram = builder.Build()
-    duration = profile.duration if duration is None else duration
-    simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate)
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir(command, seed)
-    write_run_folder(run_dir, loggers, simulator, {
-        "command": command, "seed": seed, "duration": duration,
-        "config": config, "profile": profile, "pilot_stops_at": pilot_stops_at})
-    return RunLog(run_dir)
+    """Flies `profile` with the scripted pilot (the `hover` stack) on the simulated vehicle for
+    `duration` (default the profile's); returns the run log. `pilot_stops_at` freezes the
+    pilot's output from that time (a companion computer that dies)."""
+    if pilot_stops_at is not None:
+        profile = dc.replace(profile, stop_at=pilot_stops_at)
+    scenario = vehicle_scenario(config, "hover", profile, seed, max_duration=3600.0)
+    return run(scenario, run_dir, meshcat, record, realtime_rate, command=command,
+               duration=duration)
 
 
 def run_hover(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
@@ -181,7 +174,7 @@ def fly_managed(vehicle_config: SimVehicleConfig, trajectory: ref.Trajectory, se
     """Flies the analytic `trajectory` (the goal) under the control manager and writes a run
     folder. `switch_request_source(builder)` may return a port for `switch_request`."""
     config = config or load_control_manager_config()
-    controllers_config = controllers_config or load_controllers_config(config.controllers_file)
+    controllers_config = controllers_config or config.controller_params
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
     _, estimate = add_faulty_mocap(builder, vehicle, config.period, faults)

@@ -19,7 +19,6 @@ from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.control.excitation_pilot import (ExcitationParams, ExcitationPilot,
                                                      ExcitationSegment)
 from alight.systems.control.identification import AxisData
-from alight.systems.plant.hexacopter import load_hexacopter_params
 from alight.systems.sensors.mocap import MocapParams
 
 
@@ -29,7 +28,7 @@ def fly_excitation(config: SimVehicleConfig, params: ExcitationParams, seed: int
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config))
     estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), MocapParams())
-    model = pilot_model(config)
+    model = pilot_model(config.airframe)
     pilot = builder.AddNamedSystem("pilot", ExcitationPilot(params, model.mass, model.curve))
     builder.Connect(estimate, pilot.GetInputPort("state_estimate"))
     builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
@@ -59,7 +58,7 @@ def run_sysid(config: SimVehicleConfig, seed: int = 0, run_dir: Path | None = No
     validation_params = dc.replace(base, seed=base.seed + 1, segments=list(validation_segments))
     fit_run = fly_excitation(config, fit_params, seed, run_dir / "fit")
     validation_run = fly_excitation(config, validation_params, seed + 1, run_dir / "validation")
-    model = pilot_model(config)
+    model = pilot_model(config.airframe)
     fit, start = {}, fit_params.takeoff_time
     for segment in fit_params.segments:
         fit[segment.axes] = axis_data(fit_run, start, start + segment.duration, model.mass,
@@ -77,9 +76,9 @@ def run_sysid(config: SimVehicleConfig, seed: int = 0, run_dir: Path | None = No
 def effective_damping(config: SimVehicleConfig, data: AxisData) -> np.ndarray:
     """The plant's drag (linear + quadratic, per body axis) as the best linear damping [1/s] over
     the velocities of `data`: c = (c1 E[v^2] + c2 E[|v|^3]) / (m E[v^2])."""
-    params = load_hexacopter_params(config.vehicle)
+    params = config.airframe
     v = data.velocity_N
     c1, c2 = np.asarray(params.drag_linear), np.asarray(params.drag_quadratic)
-    mass = pilot_model(config).mass
+    mass = pilot_model(config.airframe).mass
     return (c1 * np.mean(v**2, axis=0) + c2 * np.mean(np.abs(v)**3, axis=0)) \
         / (mass * np.mean(v**2, axis=0))

@@ -30,7 +30,6 @@ from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.systems.boundary import GROUND_TRUTH
 from alight.systems.control import analytic_reference as ref
 from alight.systems.params import bounded, choice
-from alight.systems.plant.hexacopter import load_hexacopter_params
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
 
 TRAJECTORIES = ("circle", "steps", "hover")
@@ -113,7 +112,7 @@ def set_vehicle_mass(diagram, vehicle_config: SimVehicleConfig, root_context, ma
     """Gives the simulated body of the diagram's `vehicle` the mass `mass` [kg] (its inertia
     scales with it): a heavier payload than the controllers know of."""
     plant = diagram.GetSubsystemByName("vehicle").GetSubsystemByName("plant")
-    body = plant.GetBodyByName(load_hexacopter_params(vehicle_config.vehicle).body)
+    body = plant.GetBodyByName(vehicle_config.airframe.body)
     body.SetMass(plant.GetMyMutableContextFromRoot(root_context), mass)
 
 

@@ -18,9 +18,9 @@ from alight.diagrams.world.rgbd_camera import add_rgbd_camera, add_rgbd_scene
 from alight.diagrams.world.target import add_target_scene, add_target_systems, perceived_ground
 from alight.models import model_path
 from alight.systems.autopilot.config import FlightControllerParams
-from alight.systems.params import bounded, load_params
+from alight.systems.params import bounded, load_params, param_file
 from alight.systems.plant.drag import AerodynamicDrag
-from alight.systems.plant.hexacopter import (add_hexacopter, airframe, load_hexacopter_params,
+from alight.systems.plant.hexacopter import (HexacopterParams, add_hexacopter, airframe,
                                              propeller_infos)
 from alight.systems.plant.motors import EscThrustMap, first_order_motors
 from alight.systems.plant.tether import Tether, TetherParams
@@ -35,7 +35,7 @@ from alight.systems.target.vehicle import TargetParams
 
 @dc.dataclass
 class SimVehicleConfig:
-    vehicle: str = "hexacopter_f550.yaml"               # the model's parameter file in models/
+    airframe: HexacopterParams = param_file(HexacopterParams, "hexacopter_f550.yaml")
     time_step: float = bounded(0.001, 1e-4, 0.01, "s")  # discrete MultibodyPlant (SAP contact)
     ground_friction: float = bounded(0.8, 0.0, 2.0)
     initial_position: list[float] = bounded([0.0, 0.0], -1e4, 1e4, "m")  # x, y on the ground
@@ -60,7 +60,7 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     none), `down_image` (the downward camera of `config.down_camera`, empty frames with source
     none) and the simulation-only `ground_truth` (with the target of `config.target`, if any).
     Seed it with `Diagram.SetRandomContext`."""
-    params = load_hexacopter_params(config.vehicle)
+    params = config.airframe
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
         MultibodyPlantConfig(time_step=config.time_step, discrete_contact_approximation="sap"),

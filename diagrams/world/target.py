@@ -47,7 +47,7 @@ def add_target_scene(plant, target: TargetParams, camera: DownCameraParams) -> T
     if camera.source == "rendered":
         plant.RegisterVisualGeometry(plant.world_body(), GeometryInstance(
             RigidTransform(), Mesh(str(model_path("target_ground.obj"))), "ground_texture"))
-    return TargetScene(target, camera, vehicle, Pattern(load_pattern_params(target.pattern)))
+    return TargetScene(target, camera, vehicle, Pattern(target.pattern))
 
 
 def perceived_ground(camera: DownCameraParams) -> bool:

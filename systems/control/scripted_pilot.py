@@ -35,6 +35,7 @@ class ProfileSegment:
 class PilotProfile:
     period: float = bounded(0.02, 0.001, 1.0, "s")  # command rate (50 Hz)
     segments: list[ProfileSegment] = dc.field(default_factory=list)
+    stop_at: float | None = None   # s: the output freezes from then on (a fault: see ScriptedPilot)
 
     @property
     def duration(self) -> float:
@@ -91,6 +92,7 @@ class ScriptedPilot(LeafSystem):
         if not profile.segments:
             raise ValueError("the pilot profile has no segments")
         self._profile, self._model = profile, model
+        stop_at = profile.stop_at if stop_at is None else stop_at
         self._stop_at = np.inf if stop_at is None else stop_at
         command = self.DeclareDiscreteState(FC_COMMAND.size)
         self.DeclarePeriodicDiscreteUpdateEvent(profile.period, 0.0, self._update)

@@ -35,6 +35,15 @@ from alight.systems.estimation.measurements import (ADAPTERS, AXES, QUANTITIES, 
                                                     fc_measurements, stamp_and_valid)
 from alight.systems.params import ConfigError, bounded, choice
 from alight.systems.rotations import heading, rotation_matrix
+from alight.systems.sensors.mocap import MocapParams
+from alight.systems.sensors.optic_flow import OpticFlowParams
+from alight.systems.sensors.position_fix import PositionFixParams
+from alight.systems.sensors.rangefinder import RangefinderParams
+
+
+# The sensor model's parameters of each source kind (simulation).
+SENSOR_PARAMS = {"position_fix": PositionFixParams, "velocity_fix": OpticFlowParams,
+                 "range": RangefinderParams, "odometry": MocapParams}
 
 
 @dc.dataclass
@@ -45,7 +54,9 @@ class SourceParams:
     # a measurement failing the innovation gate is rejected, or clipped onto the gate (lkf.py:
     # a precise source whose prediction may be the wrong one, e.g. the rangefinder)
     gate_action: str = choice("reject", "clip")
-    sensor: str = ""  # simulation: the sensor model's YAML in models/ (diagrams/estimation.py)
+    # simulation: the source's sensor model (diagrams/onboard/estimation.py SENSOR_MODELS), given
+    # as its YAML file or inline; None: the model's defaults
+    sensor: PositionFixParams | OpticFlowParams | RangefinderParams | MocapParams | None = None
 
 
 @dc.dataclass
@@ -119,6 +130,11 @@ def check_bank(params: BankParams, where: str = "<bank>") -> list[list[Fusion]]:
             raise ConfigError(f"{where}: key 'sources[{i}].name' = {s.name!r} must be a unique "
                               f"identifier other than 'fc'")
         kinds[s.name] = s.kind
+        model = SENSOR_PARAMS[s.kind]
+        if s.sensor is not None and not isinstance(s.sensor, model):
+            raise ConfigError(f"{where}: key 'sources[{i}].sensor' is a "
+                              f"{type(s.sensor).__name__}; a '{s.kind}' source takes a "
+                              f"{model.__name__} (tag it !{model.__name__})")
     if not params.filters:
         raise ConfigError(f"{where}: key 'filters' must declare at least one filter")
     names = [f.name for f in params.filters]

@@ -13,7 +13,8 @@ from pydrake.multibody.tree import FixedOffsetFrame, PdControllerGains, Prismati
 from pydrake.systems.framework import LeafSystem
 
 from alight.models import model_path
-from alight.systems.params import bounded, choice, load_params
+from alight.systems.params import bounded, choice, load_params, param_file
+from alight.systems.perception.pattern import PatternParams
 from alight.systems.target.motion import FieldTestParams, FigureEightParams, StraightParams
 
 PLATFORM_BODY = "platform"
@@ -23,7 +24,7 @@ PLATFORM_BODY = "platform"
 class TargetParams:
     profile: str = choice("none", "straight", "figure_eight", "field_test")
     model: str = "target_vehicle.sdf"
-    pattern: str = "target_pattern.yaml"
+    pattern: PatternParams = param_file(PatternParams, "target_pattern.yaml")   # on the platform
     platform_height: float = bounded(1.0, 0.2, 5.0, "m")
     initial_position: list[float] = bounded([0.0, -40.0], -1e4, 1e4, "m")
     initial_heading: float = bounded(90.0, -360.0, 360.0, "deg")
