@@ -26,11 +26,9 @@ def estimates(ticks: int, rng: np.random.Generator) -> list[np.ndarray]:
         size = 5.0 * (k % 100) / 99.0               # sweeps 0 .. 5 m every 100 ticks
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
-        out.append(STATE_ESTIMATE.pack(
-            stamp=0.0, p_EB=np.array([0, 0, 3.0]) + size * direction,
-            v_EB=rng.uniform(-3, 3, 3), a_EB=np.zeros(3), q_EB=heading_quaternion(0.1),
-            heading=0.1, heading_rate=0.0, var_pv=np.full(6, 1e-4), var_heading=1e-4,
-            frame_id=0, frame_counter=0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1))
+        out.append(STATE_ESTIMATE.vector(
+            p_EB=np.array([0, 0, 3.0]) + size * direction, v_EB=rng.uniform(-3, 3, 3),
+            q_EB=heading_quaternion(0.1), heading=0.1, var_pv=np.full(6, 1e-4), var_heading=1e-4))
     return out
 
 

@@ -32,10 +32,7 @@ from alight.systems.tracking.mpc_tracker import TrackerReason, make_mpc_tracker
 from alight.systems.tracking.trajectory_generation import (load_trajectory_generation_params,
                                                            make_trajectory_generator)
 
-HOVER = STATE_ESTIMATE.pack(stamp=0.0, p_EB=[0.0, 0.0, 2.0], v_EB=0.0, a_EB=0.0,
-                            q_EB=[1, 0, 0, 0], heading=0.0, heading_rate=0.0, var_pv=0.0,
-                            var_heading=0.0, frame_id=0, frame_counter=0, p_OldNew=0.0,
-                            q_OldNew=[1, 0, 0, 0], valid=1.0)
+HOVER = STATE_ESTIMATE.vector(p_EB=[0.0, 0.0, 2.0])
 
 
 def whole_ticks(dut, goals: list[tuple[float, object]], seconds: float,
@@ -100,10 +97,7 @@ def other_trackers(seconds: float) -> None:
 def tick_times(goal, group: str, seconds: float, p_start) -> tuple[np.ndarray, np.ndarray]:
     dut = make_mpc_tracker()
     context = dut.CreateDefaultContext()
-    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=p_start, v_EB=0.0, a_EB=0.0, q_EB=[1, 0, 0, 0], heading=0.0,
-        heading_rate=0.0, var_pv=0.0, var_heading=0.0, frame_id=0, frame_counter=0,
-        p_OldNew=0.0, q_OldNew=[1, 0, 0, 0], valid=1.0))
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(p_EB=p_start))
     dut.GetInputPort("active").FixValue(context, [1.0])
     dut.GetInputPort("last_reference").FixValue(context, np.full(REFERENCE.size, np.nan))
     dut.GetInputPort("constraint_group").FixValue(context, [dut.group_names.index(group)])

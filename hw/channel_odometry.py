@@ -32,9 +32,7 @@ class ChannelOdometry(LeafSystem):
                  params: ChannelOdometryParams):
         super().__init__()
         self._subscriber, self._link, self._params = subscriber, link, params
-        initial = np.zeros(STATE_ESTIMATE.size)  # invalid until the first sample
-        initial[STATE_ESTIMATE.slice("q_EB")] = initial[STATE_ESTIMATE.slice("q_OldNew")] = \
-            [1, 0, 0, 0]
+        initial = STATE_ESTIMATE.vector(valid=0.0)  # invalid until the first sample
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         self.DeclareStateOutputPort("state_estimate", self._xd)

@@ -10,12 +10,16 @@ import numpy as np
 
 
 class VectorLayout:
-    """Named fields of a flat vector: `layout.slice("q_WB")`, `layout.names()` for log columns."""
+    """Named fields of a flat vector: `layout.slice("q_WB")`, `layout.names()` for log columns.
+
+    `defaults` are the values of fields left out: `vector` gives every field not named its default
+    (zero where the layout declares none); `pack` may leave out only the fields with a declared one.
+    """
 
     def __init__(self, name: str, fields: list[tuple[str, int]], defaults: dict | None = None):
         self.name = name
         self.fields = list(fields)
-        self.defaults = dict(defaults or {})  # fields that `pack` may omit (appended fields)
+        self.defaults = dict(defaults or {})
         self._slices = {}
         start = 0
         for field, size in self.fields:
@@ -26,6 +30,9 @@ class VectorLayout:
         self._items = {field: self._slices[field].start if size == 1 else self._slices[field]
                        for field, size in self.fields}
         self._required = frozenset(f for f, _ in self.fields) - set(self.defaults)
+        self._default = np.zeros(self.size)
+        for field, value in self.defaults.items():
+            self._default[self._slices[field]] = value
 
     def slice(self, field: str) -> slice:
         return self._slices[field]
@@ -37,19 +44,21 @@ class VectorLayout:
         value = vector[self._slices[field]]
         return value[0] if value.size == 1 else value
 
-    def pack(self, **values) -> np.ndarray:
-        """A vector from every field by name (missing fields without a default are an error)."""
-        if not self._required.issubset(values):
-            missing = self._required - set(values)
-            raise ValueError(f"{self.name}: missing fields {sorted(missing)}")
-        vector = np.zeros(self.size)
+    def vector(self, **values) -> np.ndarray:
+        """A vector from the named fields, every other field at its default (zero if undeclared):
+        `STATE_ESTIMATE.vector(p_EB=[1, 2, 3])`."""
+        vector = self._default.copy()
         slices = self._slices
-        for field, value in self.defaults.items():
-            if field not in values:
-                vector[slices[field]] = value
         for field, value in values.items():
             vector[slices[field]] = value
         return vector
+
+    def pack(self, **values) -> np.ndarray:
+        """`vector`, for producers: leaving out a field without a declared default is an error."""
+        if not self._required.issubset(values):
+            missing = self._required - set(values)
+            raise ValueError(f"{self.name}: missing fields {sorted(missing)}")
+        return self.vector(**values)
 
     def names(self) -> list[str]:
         """One column name per element: `field` for scalars, `field_0`, `field_1`... otherwise."""
@@ -190,10 +199,13 @@ SIM_ONLY_OUTPUTS = {"ground_truth": GROUND_TRUTH}
 # M(3)-(5) and heading rate [rad, rad/s]; variances of [p, v] (6) and of the heading; the id of the
 # active estimator frame and a counter that changes whenever the arbiter switches frames; the
 # transform from the old to the new frame at the last switch (p_OldNew, q_OldNew); valid (0/1).
+# Defaults (`STATE_ESTIMATE.vector(p_EB=...)`): a valid estimate at rest, level and heading 0 in
+# frame 0 with no switch yet: identity q_EB and q_OldNew, valid 1, every other field 0.
 STATE_ESTIMATE = VectorLayout("state_estimate", [
     ("stamp", 1), ("p_EB", 3), ("v_EB", 3), ("a_EB", 3), ("q_EB", 4), ("heading", 1),
     ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
-    ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)])
+    ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)],
+    defaults={"q_EB": [1.0, 0.0, 0.0, 0.0], "q_OldNew": [1.0, 0.0, 0.0, 0.0], "valid": 1.0})
 
 
 def estimate_is_valid(estimate: np.ndarray) -> bool:

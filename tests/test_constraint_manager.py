@@ -23,12 +23,8 @@ from alight.systems.tracking.mpc_tracker import make_mpc_tracker
 MOCAP, VIO, GNSS, OPTIC_FLOW = 0, 1, 10, 12   # frame ids (models/constraint_manager.yaml)
 
 
-def estimate(frame_id: float, p_EB=(0.0, 0.0, 2.0), valid: float = 1.0,
-             frame_counter: float = 0.0) -> np.ndarray:
-    return STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=p_EB, v_EB=0.0, a_EB=0.0, q_EB=[1, 0, 0, 0], heading=0.0,
-        heading_rate=0.0, var_pv=0.0, var_heading=0.0, frame_id=frame_id,
-        frame_counter=frame_counter, p_OldNew=0.0, q_OldNew=[1, 0, 0, 0], valid=valid)
+def estimate(frame_id: float, p_EB=(0.0, 0.0, 2.0), **fields) -> np.ndarray:
+    return STATE_ESTIMATE.vector(frame_id=frame_id, p_EB=p_EB, **fields)
 
 
 class Manager:

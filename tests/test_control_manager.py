@@ -31,12 +31,8 @@ VEHICLE = VehicleModel()
 HOVER_THRUST = float(VEHICLE.curve.thrust(VEHICLE.mass * GRAVITY))
 
 
-def estimate(p=(0.0, 0.0, 2.0), valid=1.0, frame_counter=0.0, p_OldNew=(0, 0, 0),
-             q_OldNew=(1, 0, 0, 0)):
-    return STATE_ESTIMATE.pack(stamp=0.0, p_EB=p, v_EB=0.0, a_EB=0.0, q_EB=[1, 0, 0, 0],
-                               heading=0.0, heading_rate=0.0, var_pv=0.0, var_heading=0.0,
-                               frame_id=0.0, frame_counter=frame_counter, p_OldNew=p_OldNew,
-                               q_OldNew=q_OldNew, valid=valid)
+def estimate(p=(0.0, 0.0, 2.0), **fields):
+    return STATE_ESTIMATE.vector(p_EB=p, **fields)
 
 
 def goal(p=(0.0, 0.0, 2.0), heading=0.0):

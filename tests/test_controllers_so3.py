@@ -169,11 +169,8 @@ def test_controller_tilts_by_the_flight_controller_attitude_with_the_estimate_he
     dut = make_controller("se3", load_controllers_config())
     context = dut.CreateDefaultContext()
     eta = 0.7
-    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=[0, 0, 2.0], v_EB=np.zeros(3), a_EB=np.zeros(3),
-        q_EB=heading_quaternion(eta), heading=eta, heading_rate=0.0, var_pv=np.zeros(6),
-        var_heading=0.0, frame_id=0.0, frame_counter=0.0, p_OldNew=np.zeros(3),
-        q_OldNew=[1, 0, 0, 0], valid=1.0))
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(
+        p_EB=[0, 0, 2.0], q_EB=heading_quaternion(eta), heading=eta))
     dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
         stamp=0.0, p=[0, 0, 2.0], v=np.zeros(3), a=np.zeros(3), j=np.zeros(3), heading=eta,
         heading_rate=0.0))

@@ -133,10 +133,7 @@ def _command_acceleration(a_E, heading_E, eta_o, landed=0.0):
         stamp=0.0, armed=1.0, mode=0.0, link_alive=1.0, last_command_stamp=0.0, refused=0.0,
         last_refusal=0.0, landed=landed))
     dut.GetInputPort("controller_acceleration").FixValue(context, a_E)
-    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=0.0, v_EB=0.0, a_EB=0.0, q_EB=[1, 0, 0, 0], heading=heading_E,
-        heading_rate=0.0, var_pv=0.0, var_heading=0.0, frame_id=0.0, frame_counter=0.0,
-        p_OldNew=0.0, q_OldNew=[1, 0, 0, 0], valid=1.0))
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(heading=heading_E))
     dut.GetInputPort("fc_attitude").FixValue(context, FC_ATTITUDE.pack(
         stamp=0.0, q_WB=RotationMatrix(rotation_z(eta_o)).ToQuaternion().wxyz(), w_B=0.0))
     return dut.GetOutputPort("desired_acceleration").Eval(context)

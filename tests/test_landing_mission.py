@@ -40,10 +40,8 @@ class Scripted(LeafSystem):
             p, v = REFERENCE.get(reference, "p"), REFERENCE.get(reference, "v")
             if t < 0.01:
                 p = np.array([0.0, -6.0, 0.22])
-        output.SetFromVector(STATE_ESTIMATE.pack(
-            stamp=t, p_EB=p, v_EB=v, a_EB=np.zeros(3), q_EB=[1, 0, 0, 0], heading=0.0,
-            heading_rate=0.0, var_pv=np.full(6, 1e-4), var_heading=1e-4, frame_id=0,
-            frame_counter=0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0))
+        output.SetFromVector(STATE_ESTIMATE.vector(
+            stamp=t, p_EB=p, v_EB=v, var_pv=np.full(6, 1e-4), var_heading=1e-4))
 
     def _target_estimate(self, context, output):
         t = context.get_time()

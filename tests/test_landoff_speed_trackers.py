@@ -31,12 +31,9 @@ SPEED = load_speed_tracker_params()
 GROUND = 0.2     # m, the estimated height of the vehicle resting on the ground
 
 
-def estimate(p, v=(0.0, 0.0, 0.0), eta=0.0, frame_counter=0.0, p_OldNew=(0.0, 0.0, 0.0),
-             q_OldNew=(1.0, 0.0, 0.0, 0.0), valid=1.0):
-    return STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=p, v_EB=v, a_EB=0.0, q_EB=heading_quaternion(eta), heading=eta,
-        heading_rate=0.0, var_pv=0.0, var_heading=0.0, frame_id=0, frame_counter=frame_counter,
-        p_OldNew=p_OldNew, q_OldNew=q_OldNew, valid=valid)
+def estimate(p, v=(0.0, 0.0, 0.0), eta=0.0, **fields):
+    return STATE_ESTIMATE.vector(p_EB=p, v_EB=v, q_EB=heading_quaternion(eta), heading=eta,
+                                 **fields)
 
 
 class Bench:

@@ -88,10 +88,7 @@ def test_persistent_osqp_solves_the_same_program_as_drakes_osqp():
 def _mpc_context():
     dut = LinearMpc(load_linear_model(), load_linear_mpc())
     context = dut.CreateDefaultContext()
-    estimate = STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=[0, 0, 3.0], v_EB=np.zeros(3), a_EB=np.zeros(3), q_EB=[1, 0, 0, 0],
-        heading=0.0, heading_rate=0.0, var_pv=np.zeros(6), var_heading=0.0, frame_id=0,
-        frame_counter=0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0)
+    estimate = STATE_ESTIMATE.vector(p_EB=[0, 0, 3.0])
     dut.GetInputPort("state_estimate").FixValue(context, estimate)
     dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
         stamp=0.0, p=[2.0, 0, 3.0], v=np.zeros(3), a=np.zeros(3), j=np.zeros(3), heading=0.0,

@@ -161,10 +161,9 @@ def test_a_real_camera_through_opencv_feeds_the_down_image_port(tmp_path):
 
 
 def mocap_sample(stamp: float, p_EB, valid: float = 1.0) -> EstimateSample:
-    return EstimateSample(STATE_ESTIMATE.pack(
-        stamp=stamp, p_EB=p_EB, v_EB=[1.0, 0, 0], a_EB=np.zeros(3), q_EB=[1, 0, 0, 0],
-        heading=0.0, heading_rate=0.0, var_pv=[1e-6] * 6, var_heading=1e-4, frame_id=0.0,
-        frame_counter=0.0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=valid))
+    return EstimateSample(STATE_ESTIMATE.vector(
+        stamp=stamp, p_EB=p_EB, v_EB=[1.0, 0, 0], var_pv=[1e-6] * 6, var_heading=1e-4,
+        valid=valid))
 
 
 def test_the_channel_mocap_is_the_onboard_state_estimate_until_it_stops(channel):

@@ -20,10 +20,7 @@ def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0), handed_over=None
     the references, one per tick."""
     dut = make_mpc_tracker()
     context = dut.CreateDefaultContext()
-    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=p_start, v_EB=0.0, a_EB=0.0, q_EB=[1, 0, 0, 0], heading=0.0,
-        heading_rate=0.0, var_pv=0.0, var_heading=0.0, frame_id=0, frame_counter=0,
-        p_OldNew=0.0, q_OldNew=[1, 0, 0, 0], valid=1.0))
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(p_EB=p_start))
     dut.GetInputPort("active").FixValue(context, [1.0])
     dut.GetInputPort("last_reference").FixValue(
         context, np.full(REFERENCE.size, np.nan) if handed_over is None else handed_over)

@@ -19,10 +19,8 @@ from alight.systems.vio.odometry import VIO_ODOMETRY
 def _descend(dut: FailsafeController, seconds: float):
     """A fresh context of `dut`, active from a flying command, advanced `seconds`."""
     context = dut.CreateDefaultContext()
-    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.pack(
-        stamp=0.0, p_EB=[0, 0, 3], v_EB=[0, 0, -0.5], a_EB=np.zeros(3), q_EB=[1, 0, 0, 0],
-        heading=0.3, heading_rate=0.0, var_pv=np.zeros(6), var_heading=0.0, frame_id=0,
-        frame_counter=0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0))
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(
+        p_EB=[0, 0, 3], v_EB=[0, 0, -0.5], heading=0.3))
     dut.GetInputPort("reference").FixValue(context, np.zeros(REFERENCE.size))
     dut.GetInputPort("active").FixValue(context, [1.0])
     dut.GetInputPort("last_command").FixValue(context, level_command(0.0, 0.3, 0.6, 1.0))

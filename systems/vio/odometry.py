@@ -45,8 +45,7 @@ class VisualInertialOdometry(LeafSystem):
         self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
         self._rgbd = self.DeclareAbstractInputPort("rgbd", AbstractValue.Make(CameraFrame()))
         self._last = self.DeclareAbstractState(AbstractValue.Make((-1, -np.inf)))  # seq, stamp
-        self._estimate = self.DeclareDiscreteState(STATE_ESTIMATE.pack(
-            **_invalid_estimate()))
+        self._estimate = self.DeclareDiscreteState(_invalid_estimate(stamp=0.0))
         self._odometry = self.DeclareDiscreteState(VIO_ODOMETRY.size)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._reset)
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
@@ -82,7 +81,7 @@ class VisualInertialOdometry(LeafSystem):
         status = self.estimator.status
         if estimate is None or status in (VioStatus.INITIALIZING, VioStatus.LOST) or not all(
                 np.all(np.isfinite(x)) for x in (estimate.p, estimate.v, estimate.q, estimate.a)):
-            return STATE_ESTIMATE.pack(**{**_invalid_estimate(), "stamp": t})
+            return _invalid_estimate(stamp=t)
         R = rotation_matrix(estimate.q)
         return STATE_ESTIMATE.pack(
             stamp=estimate.stamp, p_EB=estimate.p, v_EB=estimate.v, a_EB=estimate.a,
@@ -108,8 +107,6 @@ class VisualInertialOdometry(LeafSystem):
             restarts=e.restarts)
 
 
-def _invalid_estimate() -> dict:
-    return dict(stamp=0.0, p_EB=np.zeros(3), v_EB=np.zeros(3), a_EB=np.zeros(3),
-                q_EB=[1.0, 0.0, 0.0, 0.0], heading=0.0, heading_rate=0.0, var_pv=np.full(6, 1e6),
-                var_heading=1e6, frame_id=VIO_FRAME_ID, frame_counter=0.0, p_OldNew=np.zeros(3),
-                q_OldNew=[1.0, 0.0, 0.0, 0.0], valid=0.0)
+def _invalid_estimate(stamp: float) -> np.ndarray:
+    return STATE_ESTIMATE.vector(stamp=stamp, var_pv=np.full(6, 1e6), var_heading=1e6,
+                                 frame_id=VIO_FRAME_ID, valid=0.0)
