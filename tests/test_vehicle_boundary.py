@@ -1,5 +1,6 @@
 """The simulated vehicle exports exactly the vehicle-boundary ports of DESIGN.md."""
 import numpy as np
+import pytest
 from pydrake.systems.framework import PortDataType
 
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
@@ -42,3 +43,14 @@ def test_layout_pack_and_names_round_trip():
     np.testing.assert_allclose(boundary.FC_COMMAND.get(command, "w_D"), [0.1, 0.2, 0.3])
     assert len(boundary.FC_COMMAND.names()) == boundary.FC_COMMAND.size
     assert boundary.FC_COMMAND.names()[2:6] == ["q_WD_0", "q_WD_1", "q_WD_2", "q_WD_3"]
+
+
+def test_a_vector_from_some_fields_takes_the_layouts_defaults_for_the_rest():
+    estimate = boundary.STATE_ESTIMATE.vector(p_EB=[1, 2, 3])
+    np.testing.assert_array_equal(boundary.STATE_ESTIMATE.get(estimate, "p_EB"), [1, 2, 3])
+    np.testing.assert_array_equal(boundary.STATE_ESTIMATE.get(estimate, "q_EB"), [1, 0, 0, 0])
+    assert boundary.estimate_is_valid(estimate)
+    assert boundary.STATE_ESTIMATE.get(estimate, "frame_counter") == 0.0
+    assert not np.any(boundary.FC_COMMAND.vector(thrust=0.5)[:2])
+    with pytest.raises(ValueError, match="q_WD"):
+        boundary.FC_COMMAND.pack(stamp=1.0, mode=1, w_D=0.0, thrust=0.5, arm=1)
