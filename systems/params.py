@@ -67,8 +67,8 @@ def load_params(schema: type[T], filename: str | Path | None = None, data: str |
     for text in overrides:
         tree = apply_override(schema, tree, text)
     try:
-        params = yaml_load_typed(schema=schema, data=yaml.dump(tree, Dumper=_TagDumper),
-                                 defaults=defaults)
+        text = yaml.dump(tree, Dumper=_TagDumper, sort_keys=False)   # mapping order kept
+        params = yaml_load_typed(schema=schema, data=text, defaults=defaults)
     except Exception as e:  # Drake raises RuntimeError / yaml errors with the key in the text.
         detail = str(e) if str(e) not in ("", "None") else "malformed or empty entry"
         raise ConfigError(f"{source}: cannot load as {schema.__name__}: {detail}") from None

@@ -8,9 +8,11 @@ from alight.diagrams.running.flights import fly_waypoints
 from alight.diagrams.running.runner import run
 from alight.diagrams.scenario import load_scenario
 from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
-from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params
+from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params, load_vio_params
 from alight.systems.vio.estimator import VioStatus
 from conftest import assert_landed
+
+pytestmark = pytest.mark.mission
 
 
 def truth_at(run, t, field="p_WB"):
@@ -24,10 +26,10 @@ def truth_at(run, t, field="p_WB"):
 def vio_flight(tmp_path_factory):
     config = load_sim_vehicle_config()
     config.rgbd_camera = load_rgbd_camera_params()
-    vio = VioRun()
+    vio = VioRun(load_vio_params())
     run = fly_waypoints(config, np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]]), seed=3,
                         run_dir=tmp_path_factory.mktemp("runs") / "vio_flight", odometry=vio,
-                        log=vio.log, max_duration=30.0)
+                        max_duration=30.0)
     return run
 
 
@@ -56,10 +58,10 @@ def blackout_flight(tmp_path_factory):
     """A 1 s camera blackout in the middle of the 3 m leg (the vehicle is moving)."""
     config = load_sim_vehicle_config()
     config.rgbd_camera = load_rgbd_camera_params()
-    vio = VioRun(blackouts=[(BLACKOUT, BLACKOUT + 1.0)])
+    vio = VioRun(load_vio_params(), blackouts=[(BLACKOUT, BLACKOUT + 1.0)])
     return fly_waypoints(config, np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]]), seed=4,
                          run_dir=tmp_path_factory.mktemp("runs") / "vio_blackout",
-                         odometry=vio, log=vio.log, max_duration=30.0)
+                         odometry=vio, max_duration=30.0)
 
 
 BLACKOUT = 5.5  # s
