@@ -51,10 +51,10 @@ class ChannelOdometry(LeafSystem):
 
 
 def channel_odometry(subscriber: FrameSubscriber, link: MavlinkLink,
-                     params: ChannelOdometryParams | None = None):
+                     params: ChannelOdometryParams):
     """The `odometry` hook of `add_mpc_control` reading the channel's mocap."""
     def odometry(builder, vehicle):
         source = builder.AddNamedSystem("channel_odometry", ChannelOdometry(
-            subscriber, link, params or ChannelOdometryParams()))
+            subscriber, link, params))
         return source.get_output_port()
     return odometry

@@ -50,7 +50,8 @@ def make_hil_diagram(link: MavlinkLink, params: MavlinkVehicleParams, scenario: 
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames,
                                                                      cameras))
-    odometry = channel_odometry(frames, link) if frames is not None else None
+    odometry = channel_odometry(frames, link, params.channel_odometry) \
+        if frames is not None else None
     onboard = add_onboard(builder, scenario, vehicle, odometry)
     onboard.loggers.add(builder, "link_status", vehicle.GetOutputPort("link_status"),
                         LINK_STATUS)

@@ -161,10 +161,9 @@ class MavlinkLink(MavlinkEndpoint):
         self._keepalive: threading.Thread | None = None
 
     @classmethod
-    def open(cls, url: str, params: LinkParams | None = None, clock: WallClock | None = None
-             ) -> "MavlinkLink":
+    def open(cls, url: str, params: LinkParams, clock: WallClock) -> "MavlinkLink":
         transport = open_connection(url, "connect")
-        link = cls(transport, params or LinkParams(), clock or WallClock(),
+        link = cls(transport, params, clock,
                    datagrams=url.split(":", 1)[0] in ("udp", "udpin", "udpout"), name=url)
         return link.start()
 

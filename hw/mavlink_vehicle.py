@@ -23,6 +23,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantValueSource
 
+from alight.hw.channel_odometry import ChannelOdometryParams
 from alight.hw.endpoint import LOG
 from alight.hw.frame_channel import FrameSubscriber
 from alight.hw.link import CommandDenied, LinkParams, LinkTimeout, MavlinkLink
@@ -47,6 +48,8 @@ class MavlinkVehicleParams:
     imu_buffer_length: int = bounded(100, 2, 100000)         # samples kept on `imu`
     telemetry_period: float = bounded(0.004, 0.001, 0.1, "s")
     camera_period: float = bounded(0.01, 0.001, 1.0, "s")
+    # the frame channel's mocap, the odometry against a simulated autopilot (`alight hil`)
+    channel_odometry: ChannelOdometryParams = dc.field(default_factory=ChannelOdometryParams)
 
 
 def load_mavlink_vehicle_params(filename: str = "mavlink_vehicle.yaml") -> MavlinkVehicleParams:

@@ -407,11 +407,10 @@ def _landed_state(status) -> int:
 
 
 def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
-                       frames: FramePublisher | None = None, meshcat=None,
-                       mocap: MocapParams | None = None):
+                       mocap: MocapParams, frames: FramePublisher | None = None, meshcat=None):
     """The simulated vehicle with the autopilot bridge closing its `fc_command` loop and the
-    world's mocap system (`mocap`, default MocapParams(): the simulation's `mocap_odometry`)
-    feeding the frame channel; returns (diagram, run loggers)."""
+    world's mocap system (`mocap`, as the simulation's `mocap_odometry`) feeding the frame
+    channel; returns (diagram, run loggers)."""
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
     commander = vehicle_config.flight_controller.commander
@@ -421,8 +420,8 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
         vehicle_config.imu.period, frames))
     for name in ("imu", "fc_attitude", "fc_status", "rgbd", "down_image"):
         builder.Connect(vehicle.GetOutputPort(name), bridge.GetInputPort(name))
-    builder.Connect(add_mocap(builder, vehicle.GetOutputPort("ground_truth"),
-                              mocap or MocapParams()), bridge.GetInputPort("mocap"))
+    builder.Connect(add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap),
+                    bridge.GetInputPort("mocap"))
     builder.Connect(bridge.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     loggers = add_run_logging(builder, vehicle, bridge.GetOutputPort("fc_command"))
     diagram = builder.Build()
@@ -444,7 +443,9 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
     endpoint = AutopilotEndpoint.open(listen, params, clock)
     frames = FramePublisher(frame_address) if frame_address else None
     try:
-        diagram, loggers = make_sim_autopilot(vehicle_config, endpoint, params, frames, meshcat)
+        # The world's mocap: MocapParams' defaults, as a scenario's `onboard.mocap`.
+        diagram, loggers = make_sim_autopilot(vehicle_config, endpoint, params, MocapParams(),
+                                              frames, meshcat)
         if meshcat is not None and record is not None:
             start_recording(meshcat)
         if ready is not None:

@@ -292,7 +292,7 @@ def mavlink_mission(connect: str, frame_address: str | None = None,
                 raise MissionUnavailable("the mission API needs a position estimate: pass "
                                          "odometry=..., or frame_address for the simulated "
                                          "autopilot's mocap")
-            stack["odometry"] = channel_odometry(frames, link)
+            stack["odometry"] = channel_odometry(frames, link, params.channel_odometry)
         builder = DiagramBuilder()
         vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames))
         onboard = add_managed_onboard(builder, vehicle, **stack)
