@@ -28,7 +28,8 @@ from pydrake.systems.analysis import Simulator
 
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.tracking.goal import TrackerGoal
-from alight.systems.tracking.mpc_tracker import TrackerReason, make_mpc_tracker
+from alight.systems.tracking.mpc_tracker import (TrackerReason, load_mpc_tracker_params,
+                                                 make_mpc_tracker)
 from alight.systems.tracking.trajectory_generation import (load_trajectory_generation_params,
                                                            make_trajectory_generator)
 
@@ -62,15 +63,20 @@ def other_trackers(seconds: float) -> None:
     from alight.diagrams.onboard.controllers import load_controllers_config
     from alight.systems.boundary import TARGET_ESTIMATE
     from alight.systems.control.controller import level_command
-    from alight.systems.tracking.landoff_tracker import LandoffGoal, make_landoff_tracker
-    from alight.systems.tracking.speed_tracker import SpeedGoal, make_speed_tracker
-    from alight.systems.tracking.target_tracker import TargetGoal, make_target_tracker
-    landoff = make_landoff_tracker(load_controllers_config().vehicle)
+    from alight.systems.tracking.landoff_tracker import (LandoffGoal,
+                                                         load_landoff_tracker_params,
+                                                         make_landoff_tracker)
+    from alight.systems.tracking.speed_tracker import (SpeedGoal, load_speed_tracker_params,
+                                                       make_speed_tracker)
+    from alight.systems.tracking.target_tracker import (TargetGoal, load_target_tracker_params,
+                                                        make_target_tracker)
+    landoff = make_landoff_tracker(load_controllers_config().vehicle,
+                                   load_landoff_tracker_params())
 
     def hover_command(context, t):
         landoff.GetInputPort("last_command").FixValue(
             context, level_command(t, 0.0, 0.6, 1.0))
-    target = make_target_tracker()
+    target = make_target_tracker(load_target_tracker_params())
 
     def driving_target(context, t):
         target.GetInputPort("target_estimate").FixValue(context, TARGET_ESTIMATE.pack(
@@ -81,21 +87,22 @@ def other_trackers(seconds: float) -> None:
         "mpc (medium step)": (None, None, None),
         "landoff": (landoff, [(0.0, LandoffGoal.takeoff(2.0)), (seconds / 2, LandoffGoal.land())],
                     hover_command),
-        "speed": (make_speed_tracker(), [(0.0, SpeedGoal(height=2.0, velocity=(2.0, 0.0)))],
-                  None),
+        "speed": (make_speed_tracker(load_speed_tracker_params()),
+                  [(0.0, SpeedGoal(height=2.0, velocity=(2.0, 0.0)))], None),
         "target": (target, [(0.0, TargetGoal.follow()),
                             (seconds / 2, TargetGoal(descent_rate=0.5))], driving_target),
     }
     print(f"{'tracker':20s}{'mean us':>9s}{'p99 us':>9s}{'max us':>9s}   (whole tick)")
     for name, (dut, goals, extra) in runs.items():
         if dut is None:
-            dut, goals = make_mpc_tracker(), [(0.0, TrackerGoal.point([8.0, -6.0, 5.0], 2.0))]
+            dut = make_mpc_tracker(load_mpc_tracker_params())
+            goals = [(0.0, TrackerGoal.point([8.0, -6.0, 5.0], 2.0))]
         us = 1e6 * whole_ticks(dut, goals, seconds, extra)
         print(f"{name:20s}{us.mean():9.0f}{np.percentile(us, 99):9.0f}{us.max():9.0f}")
 
 
 def tick_times(goal, group: str, seconds: float, p_start) -> tuple[np.ndarray, np.ndarray]:
-    dut = make_mpc_tracker()
+    dut = make_mpc_tracker(load_mpc_tracker_params())
     context = dut.CreateDefaultContext()
     dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(p_EB=p_start))
     dut.GetInputPort("active").FixValue(context, [1.0])

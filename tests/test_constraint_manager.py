@@ -18,7 +18,7 @@ from alight.systems.params import ConfigError
 from alight.systems.rotations import rotation_matrix
 from alight.systems.tracking.constraints import load_constraint_group
 from alight.systems.tracking.goal import TrackerGoal
-from alight.systems.tracking.mpc_tracker import make_mpc_tracker
+from alight.systems.tracking.mpc_tracker import load_mpc_tracker_params, make_mpc_tracker
 
 MOCAP, VIO, GNSS, OPTIC_FLOW = 0, 1, 10, 12   # frame ids (models/constraint_manager.yaml)
 
@@ -31,7 +31,7 @@ class Manager:
     """The manager alone on its context, ticked by hand; groups and requests by name."""
 
     def __init__(self, frame_id: float = MOCAP):
-        self.dut = make_constraint_manager()
+        self.dut = make_constraint_manager(load_constraint_manager_params())
         self.context = self.dut.CreateDefaultContext()
         self.request = np.zeros(REQUEST.size)
         self.fly_on(frame_id)
@@ -212,8 +212,9 @@ class ManagedTracker:
 
     def __init__(self):
         builder = DiagramBuilder()
-        self.manager = builder.AddSystem(make_constraint_manager())
-        self.tracker = builder.AddSystem(make_mpc_tracker())
+        self.manager = builder.AddSystem(make_constraint_manager(
+            load_constraint_manager_params()))
+        self.tracker = builder.AddSystem(make_mpc_tracker(load_mpc_tracker_params()))
         assert self.manager.constraint_group_names == self.tracker.group_names
         builder.Connect(self.manager.GetOutputPort("constraint_group"),
                         self.tracker.GetInputPort("constraint_group"))
@@ -309,7 +310,7 @@ def test_a_fallback_mid_flight_brakes_at_once_within_the_slow_group():
 # --- bad files ----------------------------------------------------------------------------------
 
 GOOD = """
-constraints_file: constraints.yaml
+constraint_groups: constraints.yaml
 default:
   constraints: {allowed: [slow, medium], fallback: medium}
   gains: {allowed: [soft, medium], fallback: medium}

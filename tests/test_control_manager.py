@@ -238,7 +238,8 @@ def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
     for entry in config.controllers:     # each derives from the role's base class
         assert isinstance(build_controller(entry, controllers_config), Controller)
     for entry in config.trackers:
-        assert isinstance(build_tracker(entry, controllers_config), Tracker)
+        assert isinstance(build_tracker(entry, controllers_config, config.tracker_params),
+                          Tracker)
     with pytest.raises(ConfigError, match="share the names"):
         check_control_manager_config(dc.replace(config, trackers=[TrackerEntry(
             "se3", f"{__name__}:not_a_controller")], initial_tracker="se3"))
@@ -251,7 +252,8 @@ def test_the_yaml_list_builds_the_controllers_and_bad_entries_are_named():
         check_control_manager_config(dc.replace(config, trackers=[
             TrackerEntry("mine", f"{__name__}:not_a_controller", goal="pose")]))
     with pytest.raises(ConfigError, match="tracker contract"):
-        build_tracker(TrackerEntry("bad", f"{__name__}:not_a_controller"), controllers_config)
+        build_tracker(TrackerEntry("bad", f"{__name__}:not_a_controller"), controllers_config,
+                      config.tracker_params)
     with pytest.raises(ConfigError, match="emergency_controller"):
         check_control_manager_config(dc.replace(config, emergency_controller="pid"))
     with pytest.raises(ConfigError, match="built-in"):

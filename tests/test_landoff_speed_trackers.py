@@ -91,8 +91,8 @@ def assert_consistent(rows, tolerance):
 # --- landoff tracker, alone --------------------------------------------------------------------
 
 def test_takeoff_climbs_to_the_height_within_the_limits_without_overshoot():
-    bench = Bench(make_landoff_tracker(VEHICLE), LandoffGoal.takeoff(2.0), p=(1.0, -2.0, GROUND),
-                  eta=0.7)
+    bench = Bench(make_landoff_tracker(VEHICLE, LANDOFF), LandoffGoal.takeoff(2.0),
+                  p=(1.0, -2.0, GROUND), eta=0.7)
     reasons = set()
     rows = bench.run(5.0, follow=True, each=lambda bench, _: reasons.add(bench.reason()))
     z, v_z, a_z = field(rows, "p")[:, 2], field(rows, "v")[:, 2], field(rows, "a")[:, 2]
@@ -110,7 +110,7 @@ def test_takeoff_climbs_to_the_height_within_the_limits_without_overshoot():
 
 
 def test_admittance_holds_the_reference_near_an_estimate_held_on_the_ground():
-    bench = Bench(make_landoff_tracker(VEHICLE), LandoffGoal.takeoff(3.0))
+    bench = Bench(make_landoff_tracker(VEHICLE, LANDOFF), LandoffGoal.takeoff(3.0))
     rows = bench.run(4.0)                   # the vehicle does not move
     distance = np.linalg.norm(field(rows, "p") - [0.0, 0.0, GROUND], axis=1)
     one_tick = LANDOFF.takeoff_speed * PERIOD
@@ -130,7 +130,7 @@ def thrust_for(mass_fraction):
 
 
 def test_landing_goes_below_the_estimate_and_detects_touchdown_from_the_thrust():
-    bench = Bench(make_landoff_tracker(VEHICLE), LandoffGoal.land(), p=(0.5, 0.5, 1.5))
+    bench = Bench(make_landoff_tracker(VEHICLE, LANDOFF), LandoffGoal.land(), p=(0.5, 0.5, 1.5))
     bench.set("last_command", thrust_for(1.0))
     ground_at = []
 
@@ -162,7 +162,8 @@ def test_landing_goes_below_the_estimate_and_detects_touchdown_from_the_thrust()
 
 
 def test_no_touchdown_while_the_thrust_holds_the_vehicle_or_it_still_moves():
-    bench = Bench(make_landoff_tracker(VEHICLE), LandoffGoal.land(), p=(0.0, 0.0, GROUND))
+    bench = Bench(make_landoff_tracker(VEHICLE, LANDOFF), LandoffGoal.land(),
+                  p=(0.0, 0.0, GROUND))
     bench.set("last_command", thrust_for(0.9))
     bench.run(3.0)
     assert bench.dut.GetOutputPort("landed").Eval(bench.context)[0] == 0.0
@@ -176,7 +177,7 @@ def test_no_touchdown_while_the_thrust_holds_the_vehicle_or_it_still_moves():
 
 def test_a_velocity_step_follows_the_low_pass_time_constant_height_and_heading_held():
     goal = SpeedGoal(height=2.0, heading=0.4, velocity=(1.2, -0.9))     # 1.5 m/s
-    bench = Bench(make_speed_tracker(), goal, p=(0.0, 0.0, 2.0), eta=0.4)
+    bench = Bench(make_speed_tracker(SPEED), goal, p=(0.0, 0.0, 2.0), eta=0.4)
     rows = bench.run(4.0)
     v = field(rows, "v")[:, :2]
     t = PERIOD * np.arange(len(rows))          # the step starts at the first reference
@@ -191,8 +192,9 @@ def test_a_velocity_step_follows_the_low_pass_time_constant_height_and_heading_h
 
 
 def test_speed_tracker_height_heading_and_acceleration_goals_are_limited():
-    bench = Bench(make_speed_tracker(), SpeedGoal(height=6.0, heading=3.0,
-                                                  acceleration=(10.0, 0.0)), p=(0.0, 0.0, 2.0))
+    bench = Bench(make_speed_tracker(SPEED), SpeedGoal(height=6.0, heading=3.0,
+                                                       acceleration=(10.0, 0.0)),
+                  p=(0.0, 0.0, 2.0))
     rows = bench.run(4.0)
     assert bench.reason() == ChiReason.SATURATED           # 10 m/s^2 asked
     assert np.abs(field(rows, "a")[:, 0]).max() <= SPEED.max_acceleration + 1e-9
@@ -219,8 +221,8 @@ def new_frame_estimate(p_new, v_new):
 
 
 @pytest.mark.parametrize("make, goal", [
-    (lambda: make_landoff_tracker(VEHICLE), LandoffGoal.takeoff(2.0)),
-    (make_speed_tracker, SpeedGoal(height=1.0, heading=0.0, velocity=(1.0, 0.5)))])
+    (lambda: make_landoff_tracker(VEHICLE, LANDOFF), LandoffGoal.takeoff(2.0)),
+    (lambda: make_speed_tracker(SPEED), SpeedGoal(height=1.0, heading=0.0, velocity=(1.0, 0.5)))])
 def test_a_frame_change_keeps_the_world_fixed_reference_continuous(make, goal):
     """The arbiter switches frames (30 deg of yaw, 3 m) while the reference moves."""
     bench = Bench(make(), goal, p=(0.0, 0.0, 1.0))
@@ -247,8 +249,8 @@ def test_a_frame_change_keeps_the_world_fixed_reference_continuous(make, goal):
 
 
 @pytest.mark.parametrize("make, goal", [
-    (lambda: make_landoff_tracker(VEHICLE), LandoffGoal.land()),
-    (make_speed_tracker, SpeedGoal(height=3.0, heading=0.2, velocity=(2.0, 0.0)))])
+    (lambda: make_landoff_tracker(VEHICLE, LANDOFF), LandoffGoal.land()),
+    (lambda: make_speed_tracker(SPEED), SpeedGoal(height=3.0, heading=0.2, velocity=(2.0, 0.0)))])
 def test_activation_starts_from_the_last_reference(make, goal):
     last = REFERENCE.pack(stamp=0.0, p=[1.0, 2.0, 3.0], v=[2.0, 0.0, 0.0], a=0.0, j=0.0,
                           heading=0.2, heading_rate=0.0)
@@ -277,21 +279,22 @@ def test_bad_goals_and_parameters_are_refused():
                       lambda: SpeedGoal(height=2.0, velocity=(np.nan, 0))):
         with pytest.raises(ValueError, match="goal"):
             make_goal()
-    bench = Bench(make_landoff_tracker(VEHICLE), LandoffGoal.takeoff(LANDOFF.max_takeoff_height
-                                                                     + 1.0))
+    bench = Bench(make_landoff_tracker(VEHICLE, LANDOFF),
+                  LandoffGoal.takeoff(LANDOFF.max_takeoff_height + 1.0))
     rows = bench.run(0.5)
     assert bench.reason() == ChiReason.BAD_GOAL
     np.testing.assert_allclose(field(rows, "p"), [[0.0, 0.0, GROUND]] * len(rows))
     with pytest.raises(TypeError, match="LandoffGoal"):
-        Bench(make_landoff_tracker(VEHICLE), SpeedGoal(height=1.0, velocity=(0, 0))).step()
+        Bench(make_landoff_tracker(VEHICLE, LANDOFF),
+              SpeedGoal(height=1.0, velocity=(0, 0))).step()
     params = dc.replace(LANDOFF, profile=dc.replace(LANDOFF.profile, velocity_gain=2.0))
     with pytest.raises(ConfigError, match="profile.velocity_gain"):
         make_landoff_tracker(VEHICLE, params)
 
 
 def test_no_nan_leaves_a_tracker_without_a_valid_estimate_or_reference():
-    for dut, goal in ((make_landoff_tracker(VEHICLE), LandoffGoal.takeoff(1.0)),
-                      (make_speed_tracker(), SpeedGoal(height=1.0, velocity=(1.0, 0.0)))):
+    for dut, goal in ((make_landoff_tracker(VEHICLE, LANDOFF), LandoffGoal.takeoff(1.0)),
+                      (make_speed_tracker(SPEED), SpeedGoal(height=1.0, velocity=(1.0, 0.0)))):
         bench = Bench(dut, goal)
         bench.set("state_estimate", estimate([np.nan, 0, 0], valid=0.0))
         rows = bench.run(0.2)

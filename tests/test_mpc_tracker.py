@@ -18,7 +18,7 @@ TOLERANCE = 1.02     # never over the group by more than 2 %
 def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0), handed_over=None):
     """The tracker alone, started at rest at the estimate (or from the `handed_over` reference);
     the references, one per tick."""
-    dut = make_mpc_tracker()
+    dut = make_mpc_tracker(load_mpc_tracker_params())
     context = dut.CreateDefaultContext()
     dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(p_EB=p_start))
     dut.GetInputPort("active").FixValue(context, [1.0])

@@ -23,10 +23,11 @@ from alight.systems.boundary import (CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONT
 from alight.systems.managers.control_manager import (MANAGER_STATUS, ControlManager,
                                                      EmergencyParams, SafetyArea)
 from alight.systems.params import ConfigError, bounded, load_params, param_file
-from alight.systems.tracking.landoff_tracker import make_landoff_tracker
-from alight.systems.tracking.mpc_tracker import make_mpc_tracker
-from alight.systems.tracking.speed_tracker import make_speed_tracker
-from alight.systems.tracking.target_tracker import make_target_tracker
+from alight.systems.tracking.constraints import check_constraint_groups
+from alight.systems.tracking.landoff_tracker import LandoffTrackerParams, make_landoff_tracker
+from alight.systems.tracking.mpc_tracker import MpcTrackerParams, make_mpc_tracker
+from alight.systems.tracking.speed_tracker import SpeedTrackerParams, make_speed_tracker
+from alight.systems.tracking.target_tracker import TargetTrackerParams, make_target_tracker
 
 
 @dc.dataclass
@@ -60,9 +61,19 @@ class TrackerEntry:
 
 
 @dc.dataclass
+class TrackersConfig:
+    """The built-in trackers' parameters, by tracker name (TRACKERS), each from its models/ file."""
+    mpc_tracker: MpcTrackerParams = param_file(MpcTrackerParams, "mpc_tracker.yaml")
+    landoff: LandoffTrackerParams = param_file(LandoffTrackerParams, "landoff_tracker.yaml")
+    speed: SpeedTrackerParams = param_file(SpeedTrackerParams, "speed_tracker.yaml")
+    target: TargetTrackerParams = param_file(TargetTrackerParams, "target_tracker.yaml")
+
+
+@dc.dataclass
 class ControlManagerConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")
     controller_params: ControllersConfig = param_file(ControllersConfig, "controllers.yaml")
+    tracker_params: TrackersConfig = dc.field(default_factory=TrackersConfig)
     controllers: list[ControllerEntry] = dc.field(default_factory=lambda: [
         ControllerEntry(name) for name in ("se3", "mpc", "failsafe")])
     initial_controller: str = "se3"
@@ -113,6 +124,10 @@ def check_control_manager_config(config: ControlManagerConfig, source: str = "<c
         config.safety_area.validate()
     except ValueError as e:
         raise ConfigError(f"{source}: {e}") from None
+    trackers = config.tracker_params
+    check_constraint_groups(trackers.mpc_tracker.constraint_groups, source,
+                            "tracker_params.mpc_tracker.constraint_groups.")
+    trackers.landoff.profile.check(trackers.landoff.period, f"{source}: tracker_params.landoff")
 
 
 def _check_entries(source: str, key: str, entries, builtins) -> list[str]:
@@ -135,23 +150,25 @@ def build_controller(entry: ControllerEntry, controllers_config: ControllersConf
                          CONTROLLER_INPUTS, CONTROLLER_OUTPUTS)
 
 
-def make_tracker(name: str, controllers_config: ControllersConfig):
-    """The LeafSystem of built-in tracker `name` (one of TRACKERS), from its models/ YAML."""
+def make_tracker(name: str, controllers_config: ControllersConfig, tracker_params: TrackersConfig):
+    """The LeafSystem of built-in tracker `name` (one of TRACKERS) with its `tracker_params`."""
     if name == "mpc_tracker":
-        return make_mpc_tracker()
+        return make_mpc_tracker(tracker_params.mpc_tracker)
     if name == "landoff":
-        return make_landoff_tracker(controllers_config.vehicle)
+        return make_landoff_tracker(controllers_config.vehicle, tracker_params.landoff)
     if name == "speed":
-        return make_speed_tracker()
+        return make_speed_tracker(tracker_params.speed)
     if name == "target":
-        return make_target_tracker()
+        return make_target_tracker(tracker_params.target)
     raise ValueError(f"unknown tracker {name!r}: expected one of {list(TRACKERS)}")
 
 
-def build_tracker(entry: TrackerEntry, controllers_config: ControllersConfig):
-    """The LeafSystem of one YAML tracker entry, checked against the tracker contract."""
+def build_tracker(entry: TrackerEntry, controllers_config: ControllersConfig,
+                  tracker_params: TrackersConfig):
+    """The LeafSystem of one YAML tracker entry (a built-in one with its `tracker_params`),
+    checked against the tracker contract."""
     if not entry.factory:
-        return make_tracker(entry.name, controllers_config)
+        return make_tracker(entry.name, controllers_config, tracker_params)
     return _build_plugin("tracker", entry.name, entry.factory, controllers_config,
                          TRACKER_INPUTS, TRACKER_OUTPUTS)
 
@@ -231,8 +248,9 @@ def add_control_manager(builder, config: ControlManagerConfig,
             builder.Connect(fc_attitude, controller.GetInputPort("fc_attitude"))
         controllers[entry.name] = controller
     return ManagedControllers(manager, controllers, {
-        entry.name: _add_tracker(builder, manager, entry, controllers_config, state_estimate,
-                                 goals or {}, target_estimate)
+        entry.name: _add_tracker(builder, manager, entry, controllers_config,
+                                 config.tracker_params, state_estimate, goals or {},
+                                 target_estimate)
         for entry in trackers})
 
 
@@ -262,10 +280,10 @@ def connect_managed_vehicle(builder, managed: ManagedControllers, vehicle, arm, 
                                  manager.GetOutputPort("desired_acceleration"), estimate)
 
 
-def _add_tracker(builder, manager, entry: TrackerEntry, controllers_config, state_estimate,
-                 goals: dict, target_estimate=None):
+def _add_tracker(builder, manager, entry: TrackerEntry, controllers_config, tracker_params,
+                 state_estimate, goals: dict, target_estimate=None):
     tracker = builder.AddNamedSystem(f"tracker_{entry.name}",
-                                     build_tracker(entry, controllers_config))
+                                     build_tracker(entry, controllers_config, tracker_params))
     _connect_member(builder, manager, entry.name, tracker)
     builder.Connect(state_estimate, tracker.GetInputPort("state_estimate"))
     builder.Connect(manager.GetOutputPort("reference"), tracker.GetInputPort("last_reference"))

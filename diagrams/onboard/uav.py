@@ -9,13 +9,12 @@ import numpy as np
 
 from alight.diagrams.onboard.control_manager import (GOAL_KINDS, ControlManagerConfig,
                                                      ManagedControllers, add_control_manager,
-                                                     add_managed_logging, connect_managed_vehicle,
-                                                     load_control_manager_config)
+                                                     add_managed_logging, connect_managed_vehicle)
 from alight.diagrams.onboard.controllers import ControllersConfig
-from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.diagrams.running.run_log import RunLoggers
 from alight.models import model_path
 from alight.systems.managers.constraint_manager import (CONSTRAINT_STATUS, ConstraintManager,
+                                                        ConstraintManagerParams,
                                                         make_constraint_manager)
 from alight.systems.managers.uav_manager import UAV_STATUS, UavManager, UavManagerParams
 from alight.systems.params import ConfigError, load_params
@@ -37,23 +36,25 @@ class ManagedOnboard:
     groups: ConstraintManager
 
 
-def add_managed_onboard(builder, vehicle, config: ControlManagerConfig | None = None,
-                        controllers_config: ControllersConfig | None = None,
-                        uav_params: UavManagerParams | None = None, odometry=None,
+def add_managed_onboard(builder, vehicle, config: ControlManagerConfig,
+                        uav_params: UavManagerParams, constraint_params: ConstraintManagerParams,
+                        odometry, controllers_config: ControllersConfig | None = None,
                         schedule: list[tuple[float, str]] | None = None,
                         estimate_filter=None) -> ManagedOnboard:
-    """The managed stack on `vehicle`'s boundary ports (simulated or MAVLink). `odometry`
-    as in diagrams/onboard/mpc_loop.py `add_mpc_control` (default mocap); `schedule` the control manager's
-    timed controller switches; `estimate_filter(builder, port) -> port` may alter the estimate
-    (fault injection in tests). Exports the UAV manager's command input as `uav_command`."""
-    config = config or load_control_manager_config()
+    """The managed stack `config` (its controllers with `controllers_config` when given, else
+    `config.controller_params`), the UAV manager `uav_params` and the constraint manager
+    `constraint_params` on `vehicle`'s boundary ports (simulated or MAVLink). `odometry` as in
+    diagrams/onboard/mpc_loop.py `add_mpc_control`; `schedule` the control manager's timed
+    controller switches; `estimate_filter(builder, port) -> port` may alter the estimate (fault
+    injection in tests). Exports the UAV manager's command input as `uav_command`."""
     controllers_config = controllers_config or config.controller_params
-    estimate = (odometry or mocap_odometry())(builder, vehicle)
+    estimate = odometry(builder, vehicle)
     if estimate_filter is not None:
         estimate = estimate_filter(builder, estimate)
-    groups = builder.AddNamedSystem("constraint_manager", make_constraint_manager())
+    groups = builder.AddNamedSystem("constraint_manager",
+                                    make_constraint_manager(constraint_params))
     uav = builder.AddNamedSystem("uav_manager", UavManager(
-        uav_params or load_uav_manager_params(), config.names, config.tracker_names,
+        uav_params, config.names, config.tracker_names,
         config.safety_area if config.safety_area.enabled else None,
         groups.constraint_group_names, groups.gain_group_names))
     managed = add_control_manager(

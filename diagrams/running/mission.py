@@ -30,7 +30,9 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from alight.diagrams.onboard.uav import ManagedOnboard, add_managed_onboard
+from alight.diagrams.onboard.control_manager import load_control_manager_config
+from alight.diagrams.onboard.mpc_loop import mocap_odometry
+from alight.diagrams.onboard.uav import ManagedOnboard, add_managed_onboard, load_uav_manager_params
 from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import RunLog, write_run_folder
 from alight.diagrams.running.simulation import evaluate, finish_recording, start_simulation
@@ -43,10 +45,13 @@ from alight.hw.mavlink_vehicle import (LINK_STATUS, MavlinkVehicleParams, comman
                                        load_mavlink_vehicle_params, make_mavlink_vehicle)
 from alight.hw.realtime import Pacer, WallClock
 from alight.systems.boundary import STATE_ESTIMATE
-from alight.systems.managers.constraint_manager import CONSTRAINT_STATUS, GroupRefusal
+from alight.systems.managers.constraint_manager import (CONSTRAINT_STATUS, GroupRefusal,
+                                                        load_constraint_manager_params)
 from alight.systems.managers.uav_manager import UAV_STATUS, Routine, UavCommand, UavRefusal
+from alight.systems.sensors.mocap import MocapParams
 from alight.systems.tracking.goal import TrackerGoal
-from alight.systems.tracking.trajectory_generation import make_trajectory_generator
+from alight.systems.tracking.trajectory_generation import (load_trajectory_generation_params,
+                                                           make_trajectory_generator)
 
 
 @dc.dataclass
@@ -93,10 +98,11 @@ class Mission:
                   run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
                   strict: bool = True, log=None, **stack) -> "Mission":
         """The managed stack on the simulated vehicle (`stack`: arguments of
-        `add_managed_onboard`, e.g. odometry, schedule, config, uav_params); `log(builder,
-        loggers)` may add streams; with `meshcat` and `record` (FILE.html) the replay is written
-        on `close`."""
+        `add_managed_onboard`, e.g. odometry, schedule, config, uav_params; `managed_stack`
+        fills in the ones not given, odometry mocap); `log(builder, loggers)` may add streams;
+        with `meshcat` and `record` (FILE.html) the replay is written on `close`."""
         vehicle_config = vehicle_config or SimVehicleConfig()
+        stack = managed_stack(stack, odometry=lambda: mocap_odometry(MocapParams()))
         builder = DiagramBuilder()
         vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
         onboard = add_managed_onboard(builder, vehicle, **stack)
@@ -201,7 +207,7 @@ class Mission:
     def generator(self):
         """The trajectory generator (models/trajectory_generation.yaml) of `fly_through`; its
         compute times go to the run folder's `timing` stream."""
-        generator = make_trajectory_generator()
+        generator = make_trajectory_generator(load_trajectory_generation_params())
         self.onboard.loggers.timers["trajectory_generator"] = generator.compute_timer
         return generator
 
@@ -269,6 +275,19 @@ class Mission:
         self.close()
 
 
+# The shipped parameters (models/) of the managed stack's parts a caller does not give.
+STACK_FILES = {"config": load_control_manager_config, "uav_params": load_uav_manager_params,
+               "constraint_params": load_constraint_manager_params}
+
+
+def managed_stack(stack: dict, **defaults) -> dict:
+    """`stack` (arguments of `add_managed_onboard`) with each one it does not give (or gives as
+    None) made here, once: by `defaults` (name: function making it), else from its models/
+    file (STACK_FILES)."""
+    make = {**STACK_FILES, **defaults}
+    return {**stack, **{key: made() for key, made in make.items() if stack.get(key) is None}}
+
+
 # --- `alight fly` --------------------------------------------------------------------------
 
 
@@ -293,6 +312,7 @@ def mavlink_mission(connect: str, frame_address: str | None = None,
                                          "odometry=..., or frame_address for the simulated "
                                          "autopilot's mocap")
             stack["odometry"] = channel_odometry(frames, link, params.channel_odometry)
+        stack = managed_stack(stack)
         builder = DiagramBuilder()
         vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames))
         onboard = add_managed_onboard(builder, vehicle, **stack)

@@ -24,8 +24,8 @@ from pydrake.systems.framework import LeafSystem
 from alight.models import model_path
 from alight.systems.boundary import STATE_ESTIMATE, VectorLayout
 from alight.systems.control.se3 import gain_group_names
-from alight.systems.params import ConfigError, bounded, load_params, validate
-from alight.systems.tracking.constraints import load_constraint_groups
+from alight.systems.params import ConfigError, bounded, load_params, param_file, validate
+from alight.systems.tracking.constraints import ConstraintGroups, check_constraint_groups
 
 
 @dc.dataclass
@@ -49,7 +49,7 @@ class EstimatorRules(GroupRules):
 @dc.dataclass
 class ConstraintManagerParams:
     period: float = bounded(0.01, 0.001, 0.1, "s")     # 100 Hz with the trackers (DESIGN.md)
-    constraints_file: str = "constraints.yaml"         # the constraint groups (models/)
+    constraint_groups: ConstraintGroups = param_file(ConstraintGroups, "constraints.yaml")
     default: GroupRules = dc.field(default_factory=GroupRules)   # any frame id not listed
     estimators: dict[str, EstimatorRules] = dc.field(default_factory=dict)
 
@@ -218,20 +218,18 @@ def _check_rule(rule: GroupRule, names: list[str], key: str, source: str) -> Non
 
 def load_constraint_manager_params(filename: str = "constraint_manager.yaml"
                                    ) -> ConstraintManagerParams:
-    """A path, or a file name in models/; checks the groups against the constraint groups of its
-    `constraints_file` and the SE(3) gain groups; raises ConfigError naming the file and key."""
+    """A path, or a file name in models/; checks the groups against its `constraint_groups`
+    and the SE(3) gain groups; raises ConfigError naming the file and key."""
     path = model_path(filename)
     params = load_params(ConstraintManagerParams, path)
-    check_rules(params, sorted(load_constraint_groups(params.constraints_file).groups),
-                gain_group_names(), str(path))
+    check_constraint_groups(params.constraint_groups, str(path), "constraint_groups.")
+    check_rules(params, sorted(params.constraint_groups.groups), gain_group_names(), str(path))
     return params
 
 
-def make_constraint_manager(params: ConstraintManagerParams | None = None,
-                            filename: str = "constraint_manager.yaml") -> ConstraintManager:
-    """The manager of `params` (else loaded from `filename`), with the constraint groups of its
-    `constraints_file` sorted by name as the MPC tracker indexes them (`tracker.group_names`)."""
-    source = "<params>" if params is not None else str(model_path(filename))
-    params = params or load_constraint_manager_params(filename)
-    names = sorted(load_constraint_groups(params.constraints_file).groups)
+def make_constraint_manager(params: ConstraintManagerParams,
+                            source: str = "<params>") -> ConstraintManager:
+    """The manager of `params` (`source` names them in errors), with its `constraint_groups`
+    sorted by name as the MPC tracker indexes them (`tracker.group_names`)."""
+    names = sorted(params.constraint_groups.groups)
     return ConstraintManager(params, names, gain_group_names(), source)

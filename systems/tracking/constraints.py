@@ -49,12 +49,19 @@ def load_constraint_groups(filename: str = "constraints.yaml") -> ConstraintGrou
     """A path, or a file name in models/; raises ConfigError naming the file and the key."""
     path = model_path(filename)
     groups = load_params(ConstraintGroups, path)
-    if groups.default not in groups.groups:
-        raise ConfigError(f"{path}: key 'default' = {groups.default!r} is not one of the groups "
-                          f"{sorted(groups.groups)}")
-    for name, group in groups.groups.items():   # validate() does not descend into dicts
-        validate(group, str(path), f"groups.{name}.")
+    check_constraint_groups(groups, str(path))
     return groups
+
+
+def check_constraint_groups(groups: ConstraintGroups, source: str, prefix: str = "") -> None:
+    """What `load_params` cannot check: the default names a group, and every group's ranges
+    (validate() does not descend into dicts). ConfigError names `source` and the key (under
+    `prefix` where the groups are a field of other parameters)."""
+    if groups.default not in groups.groups:
+        raise ConfigError(f"{source}: key '{prefix}default' = {groups.default!r} is not one of "
+                          f"the groups {sorted(groups.groups)}")
+    for name, group in groups.groups.items():
+        validate(group, source, f"{prefix}groups.{name}.")
 
 
 def load_constraint_group(name: str | None = None,

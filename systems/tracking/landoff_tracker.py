@@ -247,7 +247,6 @@ def load_landoff_tracker_params(filename: str = "landoff_tracker.yaml") -> Lando
     return params
 
 
-def make_landoff_tracker(vehicle: VehicleModel,
-                         params: LandoffTrackerParams | None = None) -> LandoffTracker:
+def make_landoff_tracker(vehicle: VehicleModel, params: LandoffTrackerParams) -> LandoffTracker:
     """`vehicle`: what the controllers know of it (models/controllers.yaml `vehicle`)."""
-    return LandoffTracker(params or load_landoff_tracker_params(), vehicle)
+    return LandoffTracker(params, vehicle)

@@ -22,11 +22,11 @@ import numpy as np
 
 from alight.models import model_path
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE
-from alight.systems.params import ConfigError, bounded, load_params
+from alight.systems.params import ConfigError, bounded, load_params, param_file
 from alight.systems.rotations import heading
 from alight.systems.tracking.axis_mpc import (ORDER, AxisLimits, AxisMpc, AxisMpcParams, chain,
                                               horizontal_factors)
-from alight.systems.tracking.constraints import ConstraintGroups, load_constraint_groups
+from alight.systems.tracking.constraints import ConstraintGroups, check_constraint_groups
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.tracker import Tracker, TrackerMemory, tracker_status
 
@@ -41,7 +41,7 @@ class MpcTrackerParams:
     share_floor: float = bounded(0.1, 0.0, 0.3)             # least share of a horizontal limit
     lookahead: float = bounded(0.5, 0.1, 10.0)              # far goals pulled in (x V N h)
     constraints: str = "medium"                             # default group (M Sec. 7.5)
-    constraints_file: str = "constraints.yaml"
+    constraint_groups: ConstraintGroups = param_file(ConstraintGroups, "constraints.yaml")
 
 
 class TrackerReason(enum.IntEnum):
@@ -224,9 +224,12 @@ class MpcTracker(Tracker):
 
 def load_mpc_tracker_params(filename: str = "mpc_tracker.yaml") -> MpcTrackerParams:
     """A path, or a file name in models/; raises ConfigError naming the file and the key."""
-    return load_params(MpcTrackerParams, model_path(filename))
+    path = model_path(filename)
+    params = load_params(MpcTrackerParams, path)
+    check_constraint_groups(params.constraint_groups, str(path), "constraint_groups.")
+    return params
 
 
-def make_mpc_tracker(params: MpcTrackerParams | None = None) -> MpcTracker:
-    params = params or load_mpc_tracker_params()
-    return MpcTracker(params, load_constraint_groups(params.constraints_file))
+def make_mpc_tracker(params: MpcTrackerParams) -> MpcTracker:
+    """The tracker of `params`, on their constraint groups."""
+    return MpcTracker(params, params.constraint_groups)

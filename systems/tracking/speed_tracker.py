@@ -186,5 +186,5 @@ def load_speed_tracker_params(filename: str = "speed_tracker.yaml") -> SpeedTrac
     return load_params(SpeedTrackerParams, model_path(filename))
 
 
-def make_speed_tracker(params: SpeedTrackerParams | None = None) -> SpeedTracker:
-    return SpeedTracker(params or load_speed_tracker_params())
+def make_speed_tracker(params: SpeedTrackerParams) -> SpeedTracker:
+    return SpeedTracker(params)

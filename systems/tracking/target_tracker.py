@@ -198,5 +198,5 @@ def load_target_tracker_params(filename: str = "target_tracker.yaml") -> TargetT
     return load_params(TargetTrackerParams, model_path(filename))
 
 
-def make_target_tracker(params: TargetTrackerParams | None = None) -> TargetTracker:
-    return TargetTracker(params or load_target_tracker_params())
+def make_target_tracker(params: TargetTrackerParams) -> TargetTracker:
+    return TargetTracker(params)

@@ -38,11 +38,11 @@ from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from pydrake.trajectories import PiecewisePolynomial
 
 from alight.models import model_path
-from alight.systems.params import ConfigError, bounded, choice, load_params
+from alight.systems.params import ConfigError, bounded, choice, load_params, param_file
 from alight.systems.timing import ComputeTimer
 from alight.systems.tracking.constraints import (ConstraintGroup, ConstraintGroups,
-                                                 derivative_peaks, limits_table,
-                                                 load_constraint_groups)
+                                                 check_constraint_groups, derivative_peaks,
+                                                 limits_table)
 from alight.systems.tracking.goal import TrackerGoal
 
 AXES = 4          # x, y, z, heading
@@ -56,7 +56,7 @@ class TrajectoryGenerationParams:
     continuity: int = bounded(4, 2, 6)                      # derivatives continuous at waypoints
     velocity_weight: float = bounded(1.0, 0.0, 1e3, "s^(2-2r)")  # w_v (0: pure minimum snap)
     constraints: str = "medium"                             # default group (M Sec. 7.5)
-    constraints_file: str = "constraints.yaml"
+    constraint_groups: ConstraintGroups = param_file(ConstraintGroups, "constraints.yaml")
     max_derivative: int = bounded(3, 1, 4)                  # checked: speed .. jerk (4: snap)
     samples_per_segment: int = bounded(100, 10, 10000)      # constraint and deviation checks
     rescaling: str = choice("per_segment", "uniform")       # M Sec. 6, or the baseline of [55]
@@ -406,10 +406,12 @@ def insert_midpoints(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
 def load_trajectory_generation_params(
         filename: str = "trajectory_generation.yaml") -> TrajectoryGenerationParams:
     """A path, or a file name in models/; raises ConfigError naming the file and the key."""
-    return load_params(TrajectoryGenerationParams, model_path(filename))
+    path = model_path(filename)
+    params = load_params(TrajectoryGenerationParams, path)
+    check_constraint_groups(params.constraint_groups, str(path), "constraint_groups.")
+    return params
 
 
-def make_trajectory_generator(params: TrajectoryGenerationParams | None = None
-                              ) -> TrajectoryGenerator:
-    params = params or load_trajectory_generation_params()
-    return TrajectoryGenerator(params, load_constraint_groups(params.constraints_file))
+def make_trajectory_generator(params: TrajectoryGenerationParams) -> TrajectoryGenerator:
+    """The generator of `params`, on their constraint groups."""
+    return TrajectoryGenerator(params, params.constraint_groups)
