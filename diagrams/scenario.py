@@ -31,6 +31,7 @@ from alight.systems.mission.landing import LandingMissionParams
 from alight.systems.mission.waypoints import WaypointMissionParams
 from alight.systems.params import (ConfigError, bounded, choice, load_params, param_file,
                                    validate)
+from alight.systems.perception.target_estimator import TargetEstimatorParams
 from alight.systems.sensors.mocap import MocapParams
 from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.vio.estimator import VioParams
@@ -67,6 +68,8 @@ class Onboard:
     linear_mpc: LinearMpcParams = param_file(LinearMpcParams, "linear_mpc.yaml")
     linear_model: LinearModelParams = param_file(LinearModelParams, "linear_model.yaml")
     mocap: MocapParams = dc.field(default_factory=MocapParams)
+    perception: TargetEstimatorParams = param_file(TargetEstimatorParams,
+                                                   "target_perception.yaml")  # landing stacks
     estimator_bank: BankParams = param_file(BankParams, "estimator_bank.yaml")
     vio: VioParams = param_file(VioParams, "vio.yaml")
     vio_camera: RgbdCameraParams = param_file(RgbdCameraParams, "rgbd_camera_landing.yaml")
@@ -151,8 +154,8 @@ def check_scenario(scenario: Scenario, where: str) -> None:
                           f"'{onboard.stack}' stack (key 'onboard.stack') flies a "
                           f"{kind.__name__} (tag it !{kind.__name__})")
     if onboard.estimator != "vio":
-        scenario_odometry(onboard.estimator, onboard.estimator_bank, where, others=("vio",),
-                          key="onboard.estimator")
+        scenario_odometry(onboard.estimator, onboard.estimator_bank, onboard.linear_model,
+                          where, others=("vio",), key="onboard.estimator")
     if onboard.stack == "landing" and onboard.controller != "linear_mpc":
         raise ConfigError(f"{where}: key 'onboard.controller' = {onboard.controller!r}: the "
                           f"direct landing stack flies linear_mpc only (onboard.stack: "

@@ -43,15 +43,16 @@ def scenario_estimator(scenario: Scenario):
     if onboard.estimator == "vio":
         start = [*scenario.vehicle.initial_position, onboard.vio.initial_position[2]]
         return VioRun(dc.replace(onboard.vio, initial_position=start))
-    return scenario_odometry(onboard.estimator, onboard.estimator_bank, f"scenario "
-                             f"{scenario.name}", others=("vio",), key="onboard.estimator"
-                             ) or mocap_odometry(onboard.mocap)
+    return scenario_odometry(onboard.estimator, onboard.estimator_bank, onboard.linear_model,
+                             f"scenario {scenario.name}", others=("vio",),
+                             key="onboard.estimator") or mocap_odometry(onboard.mocap)
 
 
 def _landing(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard = scenario.onboard
     parts = add_landing_onboard(builder, vehicle, scenario.mission, onboard.linear_mpc,
-                                onboard.linear_model, odometry, scenario.camera_blackouts)
+                                onboard.linear_model, odometry, onboard.perception,
+                                scenario.camera_blackouts)
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,
                         parts.finished(scenario.scoring.settle_time), {"trackers": []}, parts)
 
@@ -60,7 +61,7 @@ def _landing_managed(builder, scenario: Scenario, vehicle, odometry) -> OnboardS
     onboard = scenario.onboard
     parts = add_landing_managed(builder, vehicle, scenario.mission, onboard.control_manager,
                                 onboard.controller, onboard.linear_mpc, odometry,
-                                scenario.camera_blackouts)
+                                onboard.perception, scenario.camera_blackouts)
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,
                         parts.finished(scenario.scoring.settle_time),
                         {"trackers": list(parts.managed.trackers)}, parts)

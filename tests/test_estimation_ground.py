@@ -8,6 +8,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from alight.diagrams.onboard.estimation import BankOdometry, load_bank_params
+from alight.diagrams.onboard.mpc_loop import load_linear_model
 from alight.diagrams.running.mission import Mission
 from alight.systems.boundary import FC_ATTITUDE, FC_STATUS, STATE_ESTIMATE
 from alight.systems.control.controller import level_command
@@ -168,7 +169,7 @@ def test_the_managed_stack_lands_on_the_bank_and_disarms_with_the_estimate_on_th
     """Take off, go 2 m, land, on the bank's own frames (the arbiter switches to RTK on the
     way): disarmed on the ground, the height estimate within 0.15 m of the truth from touchdown
     to the end, no emergency landing or failsafe."""
-    odometry = BankOdometry(anchored=False)
+    odometry = BankOdometry(load_bank_params(), load_linear_model(), anchored=False)
     mission = Mission.simulated(seed=0, run_dir=tmp_path, strict=False, odometry=odometry,
                                 log=odometry.log)
     with mission:

@@ -25,9 +25,11 @@ def _scenario_file(tmp_path, **onboard):
 def test_the_scenario_flies_mocap_unless_it_declares_the_bank(tmp_path):
     field = load_scenario("field")
     assert field.onboard.estimator == "mocap"
-    assert scenario_odometry("mocap", field.onboard.estimator_bank) is None
+    assert scenario_odometry("mocap", field.onboard.estimator_bank,
+                             field.onboard.linear_model) is None
     scenario = load_scenario(str(_scenario_file(tmp_path, estimator="rtk")))
-    odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank)
+    odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank,
+                                 scenario.onboard.linear_model)
     assert isinstance(odometry, BankOdometry) and odometry.request == "rtk" and odometry.anchored
 
 
@@ -45,7 +47,8 @@ def test_an_unknown_estimator_is_refused_at_load_naming_the_file_and_the_key(tmp
 def test_the_direct_stack_is_built_on_the_anchored_bank(tmp_path):
     scenario = load_scenario(str(_scenario_file(tmp_path, estimator="bank")))
     builder = DiagramBuilder()
-    odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank)
+    odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank,
+                                 scenario.onboard.linear_model)
     onboard = build(builder, scenario, odometry=odometry)
     diagram = builder.Build()
     assert diagram.HasSubsystemNamed("estimator_bank")

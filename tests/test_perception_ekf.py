@@ -50,7 +50,7 @@ def target_pass(vehicle_config):
     builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     state_estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), MocapParams())
     perception = add_target_perception(builder, vehicle.GetOutputPort("down_image"),
-                                       state_estimate)
+                                       state_estimate, load_target_estimator_params())
     logs = {}
     for name, port, size in (("truth", vehicle.GetOutputPort("ground_truth"), GROUND_TRUTH.size),
                              ("estimate", perception.target_estimate, TARGET_ESTIMATE.size),

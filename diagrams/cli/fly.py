@@ -83,6 +83,7 @@ def _fly_stack(args, scenario) -> dict:
     switches."""
     from alight.diagrams.onboard.control_manager import parse_switch
     from alight.diagrams.onboard.estimation import scenario_odometry
+    from alight.diagrams.onboard.mpc_loop import mocap_odometry
     from alight.systems.params import ConfigError
     config = scenario.onboard.control_manager
     for option, name, names in (("--controller", args.controller, config.names),
@@ -93,7 +94,10 @@ def _fly_stack(args, scenario) -> dict:
     stack = {"config": config, "schedule": [parse_switch(text, config.names)
                                             for text in args.switch_controller_at]}
     odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank,
-                                 "alight fly --estimator", anchored=False)
-    if odometry is not None:
+                                 scenario.onboard.linear_model, "alight fly --estimator",
+                                 anchored=False)
+    if odometry is None:
+        stack["odometry"] = mocap_odometry(scenario.onboard.mocap)
+    else:
         stack.update(odometry=odometry, log=odometry.log)
     return stack

@@ -3,9 +3,10 @@ models, or the mocap source) from the bank YAML, the bank, and the command-deriv
 input; `BankOdometry` is the `odometry` hook of `mpc_loop.add_mpc_control` (and the
 runners' `add_mpc_loop` / `fly_waypoints`).
 
-A source entry in the bank YAML names its kind and, for simulation, its sensor model's YAML
-(`sensor:`); `SENSOR_MODELS` maps the kind to the model. Adding a simulated source kind is one
-entry here plus its adapter in `systems/estimation/measurements.py`.
+A source entry in the bank YAML names its kind and, for simulation, its sensor model's parameters
+(`sensor:`, a file resolved at load, or inline); `SENSOR_MODELS` maps the kind to the model.
+Adding a simulated source kind is one entry here plus its adapter in
+`systems/estimation/measurements.py`.
 """
 import dataclasses as dc
 
@@ -14,17 +15,16 @@ from pydrake.common import RandomDistribution
 from pydrake.systems.primitives import ConstantVectorSource, DiscreteTimeDelay, RandomSource
 
 from alight.diagrams.onboard.mocap import add_mocap
-from alight.diagrams.onboard.mpc_loop import load_linear_model
 from alight.models import model_path
 from alight.systems.boundary import STATE_ESTIMATE
-from alight.systems.estimation.bank import BankParams, EstimatorBank, check_bank
+from alight.systems.estimation.bank import SENSOR_PARAMS, BankParams, EstimatorBank, check_bank
 from alight.systems.estimation.command_acceleration import CommandAcceleration
 from alight.systems.estimation.frames import FrameAnchor
+from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.params import ConfigError, load_params
-from alight.systems.sensors.mocap import MocapParams
-from alight.systems.sensors.optic_flow import OpticFlow, OpticFlowParams
-from alight.systems.sensors.position_fix import PositionFix, PositionFixParams
-from alight.systems.sensors.rangefinder import Rangefinder, RangefinderParams
+from alight.systems.sensors.optic_flow import OpticFlow
+from alight.systems.sensors.position_fix import PositionFix
+from alight.systems.sensors.rangefinder import Rangefinder
 from alight.systems.thrust_curve import ThrustCurve
 
 
@@ -53,25 +53,20 @@ def add_sampled_sensor(builder, name: str, sensor, latency: float, ground_truth_
     return delay.get_output_port()
 
 
-def _sampled(schema, system):
+def _sampled(system):
     def build(builder, name, params, ground_truth_port):
-        params = load_params(schema, model_path(params)) if isinstance(params, str) else \
-            params or schema()
         return add_sampled_sensor(builder, name, system(params), params.latency,
                                   ground_truth_port)
     return build
 
 
 def _mocap(builder, name, params, ground_truth_port):
-    params = load_params(MocapParams, model_path(params)) if isinstance(params, str) else \
-        params or MocapParams()
     return add_mocap(builder, ground_truth_port, params, name=name)
 
 
-SENSOR_MODELS = {"position_fix": _sampled(PositionFixParams, PositionFix),
-                 "velocity_fix": _sampled(OpticFlowParams, OpticFlow),
-                 "range": _sampled(RangefinderParams, Rangefinder),
-                 "odometry": _mocap}
+# The simulated sensor model of each source kind, built from its parameters (SENSOR_PARAMS).
+SENSOR_MODELS = {"position_fix": _sampled(PositionFix), "velocity_fix": _sampled(OpticFlow),
+                 "range": _sampled(Rangefinder), "odometry": _mocap}
 
 
 @dc.dataclass
@@ -88,14 +83,17 @@ def add_estimator_bank(builder, vehicle, params: BankParams, request: str | None
                        sensors: dict | None = None, name: str = "estimator_bank") -> Bank:
     """The bank fed by simulated sources on `vehicle`'s ground truth and its `fc_attitude`.
     `request`: a filter name the arbiter is asked for (held for the whole run); `sensors`:
-    {source name: sensor YAML or params} overriding the bank YAML's `sensor:` entries."""
+    {source name: sensor parameters} overriding the bank's `sensor:` entries (a source with
+    neither flies its model's defaults, SourceParams)."""
     bank = builder.AddNamedSystem(name, EstimatorBank(params))
     builder.Connect(vehicle.GetOutputPort("fc_attitude"), bank.GetInputPort("fc_attitude"))
     truth = vehicle.GetOutputPort("ground_truth")
     ports = {}
     for source in params.sources:
-        filename = (sensors or {}).get(source.name, source.sensor)
-        ports[source.name] = SENSOR_MODELS[source.kind](builder, source.name, filename, truth)
+        sensor = (sensors or {}).get(source.name, source.sensor)
+        if sensor is None:
+            sensor = SENSOR_PARAMS[source.kind]()
+        ports[source.name] = SENSOR_MODELS[source.kind](builder, source.name, sensor, truth)
         builder.Connect(ports[source.name], bank.GetInputPort(source.name))
     if request is not None:
         if request not in bank.filter_names:
@@ -116,15 +114,15 @@ class BankOdometry:
     mission, which do not re-express on frame switches), or as the bank outputs it, switching
     frames (the managed stack re-expresses, M Sec. 3.5);
     `connect_command` feeds the bank its input M(53): the active controller's own where it has
-    one (`controller_acceleration`, in the frame of `estimate`), else the command stand-in;
+    one (`controller_acceleration`, in the frame of `estimate`), else the command stand-in
+    (thrust to acceleration by `model`'s mass and thrust curve);
     `log(builder, loggers)` records `bank_estimate` (active frame) and `bank_status`."""
 
-    def __init__(self, params: BankParams | None = None, request: str | None = None,
-                 sensors: dict | None = None, mass: float | None = None,
-                 curve: ThrustCurve | None = None, anchored: bool = True):
-        self.params = params or load_bank_params()
+    def __init__(self, params: BankParams, model: LinearModelParams, request: str | None = None,
+                 sensors: dict | None = None, anchored: bool = True):
+        self.params = params
         self.request, self.sensors, self.anchored = request, sensors, anchored
-        self._mass, self._curve = mass, curve
+        self._mass, self._curve = model.mass, ThrustCurve(model.thrust_a, model.thrust_b)
         self.bank: Bank | None = None
 
     def __call__(self, builder, vehicle):
@@ -134,9 +132,6 @@ class BankOdometry:
 
     def connect_command(self, builder, command_port, controller_acceleration=None,
                         estimate=None) -> None:
-        if self._mass is None:
-            model = load_linear_model()
-            self._mass, self._curve = model.mass, ThrustCurve(model.thrust_a, model.thrust_b)
         acceleration = builder.AddNamedSystem("command_acceleration",
                                               CommandAcceleration(self._mass, self._curve))
         builder.Connect(command_port, acceleration.GetInputPort("fc_command"))
@@ -159,12 +154,12 @@ class BankOdometry:
 ESTIMATORS = ("mocap", "bank")   # besides the bank's filter names
 
 
-def scenario_odometry(estimator: str, bank: BankParams, where: str = "<scenario>",
-                      anchored: bool = True, others: tuple = (),
+def scenario_odometry(estimator: str, bank: BankParams, model: LinearModelParams,
+                      where: str = "<scenario>", anchored: bool = True, others: tuple = (),
                       key: str = "estimator") -> "BankOdometry | None":
     """The `odometry` hook a scenario's `estimator:` entry names: None for `mocap` (the caller's
-    mocap), `BankOdometry` on `bank` for `bank` (its arbiter) or one of its filters (requested
-    for the whole run); `anchored` for the landing mission's state machine, which keeps its
+    mocap), `BankOdometry` on `bank` (and the vehicle `model`) for `bank` (its arbiter) or one of
+    its filters (requested for the whole run); `anchored` for the landing mission's state machine, which keeps its
     waypoint and reference in E and does not re-express them on frame switches (the managed
     stack of `alight fly` does: anchored=False). Raises ConfigError naming `where` and the key
     for anything else (`others`: names the caller handles, for the message; `key`: the
@@ -176,7 +171,7 @@ def scenario_odometry(estimator: str, bank: BankParams, where: str = "<scenario>
         raise ConfigError(f"{where}: key '{key}' = {estimator!r} must be one of "
                           f"{[*ESTIMATORS, *others, *names]} (the last ones: the filters of "
                           f"the estimator bank)")
-    return BankOdometry(bank, request=None if estimator == "bank" else estimator,
+    return BankOdometry(bank, model, request=None if estimator == "bank" else estimator,
                         anchored=anchored)
 
 

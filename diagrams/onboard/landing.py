@@ -15,6 +15,7 @@ from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpcParams
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
                                             Mode)
+from alight.systems.perception.target_estimator import TargetEstimatorParams
 from alight.systems.sensors.camera_faults import CameraBlackout
 
 
@@ -39,15 +40,16 @@ def landed_and_disarmed(mission: LandingMission, vehicle, settle_time: float) ->
 
 
 def add_down_camera_perception(builder: DiagramBuilder, vehicle, state_estimate,
+                               params: TargetEstimatorParams,
                                camera_blackouts=()) -> TargetPerceptionPorts:
-    """Target perception on `vehicle`'s `down_image`, blanked in the `camera_blackouts` windows
-    [[start, end], ...] s (a sensor fault, simulation only)."""
+    """Target perception `params` on `vehicle`'s `down_image`, blanked in the `camera_blackouts`
+    windows [[start, end], ...] s (a sensor fault, simulation only)."""
     image = vehicle.GetOutputPort("down_image")
     if camera_blackouts:
         blackout = builder.AddNamedSystem("camera_blackout", CameraBlackout(camera_blackouts))
         builder.Connect(image, blackout.get_input_port())
         image = blackout.get_output_port()
-    return add_target_perception(builder, image, state_estimate)
+    return add_target_perception(builder, image, state_estimate, params)
 
 
 def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: LandingMission,
@@ -60,20 +62,20 @@ def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: L
 
 def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
                         mpc_params: LinearMpcParams, model: LinearModelParams, odometry,
+                        perception: TargetEstimatorParams,
                         camera_blackouts=()) -> LandingOnboard:
     """The onboard landing stack on `vehicle`'s boundary ports (the simulated or the MAVLink
     vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, `odometry` and
-    the linear MPC (`add_mpc_control`), target perception on `down_image` (with
+    the linear MPC (`add_mpc_control`), target perception `perception` on `down_image` (with
     `camera_blackouts`) and the run logging."""
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
     loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
                            mission.GetOutputPort("arm"), odometry=odometry,
                            mpc_params=mpc_params, model=model)
-    perception = add_down_camera_perception(builder, vehicle, loop.state_estimate_port,
-                                            camera_blackouts)
+    ports = add_down_camera_perception(builder, vehicle, loop.state_estimate_port, perception,
+                                       camera_blackouts)
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))
-    builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
+    builder.Connect(ports.target_estimate, mission.GetInputPort("target_estimate"))
     loggers = add_mpc_logging(builder, loop, mission.GetOutputPort("reference"))
-    add_mission_logging(builder, loggers, mission, perception.target_estimate,
-                        mission_params.period)
-    return LandingOnboard(mission, loop, perception, loggers)
+    add_mission_logging(builder, loggers, mission, ports.target_estimate, mission_params.period)
+    return LandingOnboard(mission, loop, ports, loggers)

@@ -24,6 +24,7 @@ from alight.diagrams.running.simulation import DisarmedAfter
 from alight.systems.control.linear_mpc import LinearMpcParams
 from alight.systems.mission.landing import LandingMission, LandingMissionParams
 from alight.systems.mission.landing_requests import LandingRequests
+from alight.systems.perception.target_estimator import TargetEstimatorParams
 from alight.systems.params import ConfigError
 
 
@@ -66,17 +67,19 @@ def landing_manager_config(controller: str, config: ControlManagerConfig) -> Con
 def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
                         config: ControlManagerConfig, controller: str,
                         mpc_params: LinearMpcParams, odometry,
+                        perception: TargetEstimatorParams,
                         camera_blackouts=()) -> LandingManagedOnboard:
     """The landing mission on the managed stack `config` flown by `controller`, on `vehicle`'s
     boundary ports (simulated or MAVLink); `odometry` as in diagrams/onboard/mpc_loop.py
-    `add_mpc_control`; the linear MPC controller takes `mpc_params` (the landing tuning)."""
+    `add_mpc_control`; the linear MPC controller takes `mpc_params` (the landing tuning); target
+    perception `perception` on `down_image`."""
     config = landing_manager_config(controller, config)
     controllers_config = dc.replace(config.controller_params, linear_mpc=mpc_params)
     estimate = odometry(builder, vehicle)
-    perception = add_down_camera_perception(builder, vehicle, estimate, camera_blackouts)
+    ports = add_down_camera_perception(builder, vehicle, estimate, perception, camera_blackouts)
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
     builder.Connect(estimate, mission.GetInputPort("state_estimate"))
-    builder.Connect(perception.target_estimate, mission.GetInputPort("target_estimate"))
+    builder.Connect(ports.target_estimate, mission.GetInputPort("target_estimate"))
     requests = builder.AddNamedSystem("landing_requests", LandingRequests(
         mission_params, config.tracker_names, *LANDING_TRACKERS))
     builder.Connect(mission.GetOutputPort("mission_status"),
@@ -86,13 +89,11 @@ def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: Landin
              for kind in ("trajectory", "landoff", "target")}
     managed = add_control_manager(builder, config, controllers_config, estimate, goals=goals,
                                   fc_attitude=vehicle.GetOutputPort("fc_attitude"),
-                                  target_estimate=perception.target_estimate)
+                                  target_estimate=ports.target_estimate)
     connect_managed_vehicle(builder, managed, vehicle, mission.GetOutputPort("arm"),
                             requests.GetOutputPort("tracker_request"), odometry, estimate)
     # "goal": the mission's own L Sec. 6.3 reference, beside the issued one ("reference").
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
                                   mission.GetOutputPort("reference"), config.period)
-    add_mission_logging(builder, loggers, mission, perception.target_estimate,
-                        mission_params.period)
-    return LandingManagedOnboard(vehicle, estimate, mission, requests, managed, perception,
-                                 loggers)
+    add_mission_logging(builder, loggers, mission, ports.target_estimate, mission_params.period)
+    return LandingManagedOnboard(vehicle, estimate, mission, requests, managed, ports, loggers)

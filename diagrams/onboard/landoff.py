@@ -38,12 +38,12 @@ class GoalSchedule(LeafSystem):
 
 
 def add_landoff_loop(builder, vehicle, controllers_config: ControllersConfig,
-                     tracker_params: LandoffTrackerParams, schedule, controller: str = "se3",
-                     mocap: MocapParams | None = None):
-    """Mocap odometry of `vehicle`, the landoff tracker following `schedule`, the controller and
-    the arm gate (disarmed once landed) on the vehicle's command. Returns (estimate port,
-    tracker, controller, the issued command port)."""
-    estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
+                     tracker_params: LandoffTrackerParams, schedule, mocap: MocapParams,
+                     controller: str = "se3"):
+    """Mocap odometry `mocap` of `vehicle`, the landoff tracker following `schedule`, the
+    controller and the arm gate (disarmed once landed) on the vehicle's command. Returns
+    (estimate port, tracker, controller, the issued command port)."""
+    estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap)
     tracker = builder.AddNamedSystem("landoff_tracker", make_landoff_tracker(
         controllers_config.vehicle, tracker_params))
     goals = builder.AddNamedSystem("goals", GoalSchedule(schedule))

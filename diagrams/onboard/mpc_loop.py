@@ -1,6 +1,6 @@
 """The landing paper's linear MPC closing the loop on any vehicle's boundary ports (L Sec. 6.1-6.2):
-odometry (mocap by default) -> linear MPC -> arm gate -> `fc_command` (`add_mpc_control`), and its
-logging."""
+odometry (e.g. mocap, `mocap_odometry`) -> linear MPC -> arm gate -> `fc_command`
+(`add_mpc_control`), and its logging."""
 import dataclasses as dc
 
 from pydrake.systems.primitives import ConstantVectorSource
@@ -34,28 +34,25 @@ class MpcLoop:
     mpc_period: float
 
 
-def mocap_odometry(params: MocapParams | None = None):
-    """The default odometry source for `add_mpc_loop`: mocap (true pose + noise + latency)."""
+def mocap_odometry(params: MocapParams):
+    """The odometry source of simulation: mocap (true pose + noise + latency)."""
     return lambda builder, vehicle: add_mocap(builder, vehicle.GetOutputPort("ground_truth"),
-                                              params or MocapParams())
+                                              params)
 
 
-def add_mpc_control(builder, vehicle, reference_port, arm_port,
-                    mpc_params: LinearMpcParams | None = None,
-                    model: LinearModelParams | None = None, odometry=None,
-                    estimate_filter=None) -> MpcLoop:
+def add_mpc_control(builder, vehicle, reference_port, arm_port, mpc_params: LinearMpcParams,
+                    model: LinearModelParams, odometry, estimate_filter=None) -> MpcLoop:
     """Onboard: odometry + linear MPC (+ arm gate) following `reference_port` and commanding
     `vehicle` through its boundary ports only (the simulated or the MAVLink vehicle).
-    `odometry(builder, vehicle) -> STATE_ESTIMATE port` builds the state estimate (default
-    `mocap_odometry()`, simulation only; VIO, the estimator bank and the MAVLink side's channel
-    mocap plug in here); an odometry with `connect_command(builder, port)` is also given the
-    issued command; `estimate_filter(builder, port) -> port` may alter the estimate (fault
+    `odometry(builder, vehicle) -> STATE_ESTIMATE port` builds the state estimate
+    (`mocap_odometry(params)`, simulation only; VIO, the estimator bank and the MAVLink side's
+    channel mocap plug in here); an odometry with `connect_command(builder, port)` is also given
+    the issued command; `estimate_filter(builder, port) -> port` may alter the estimate (fault
     injection in tests)."""
-    estimate = (odometry or mocap_odometry())(builder, vehicle)
+    estimate = odometry(builder, vehicle)
     if estimate_filter is not None:
         estimate = estimate_filter(builder, estimate)
-    mpc_params = mpc_params or load_linear_mpc()
-    mpc = builder.AddNamedSystem("linear_mpc", LinearMpc(model or load_linear_model(), mpc_params))
+    mpc = builder.AddNamedSystem("linear_mpc", LinearMpc(model, mpc_params))
     gate = builder.AddNamedSystem("arm_gate", ArmGate())
     active = builder.AddNamedSystem("mpc_active", ConstantVectorSource([1.0]))
     builder.Connect(estimate, mpc.GetInputPort("state_estimate"))

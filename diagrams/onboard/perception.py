@@ -4,7 +4,7 @@ import dataclasses as dc
 
 from alight.models import model_path
 from alight.systems.params import load_params
-from alight.systems.perception.pattern import Pattern, load_pattern_params
+from alight.systems.perception.pattern import Pattern
 from alight.systems.perception.target_estimator import TargetEstimator, TargetEstimatorParams
 
 
@@ -20,14 +20,12 @@ class TargetPerceptionPorts:
 
 
 def add_target_perception(builder, down_image_port, state_estimate_port,
-                          params: TargetEstimatorParams | None = None,
-                          pattern_file: str = "target_pattern.yaml",
+                          params: TargetEstimatorParams,
                           name: str = "target_estimator") -> TargetPerceptionPorts:
-    """Adds the target estimator reading the vehicle's `down_image` and a `state_estimate`
-    (STATE_ESTIMATE, e.g. `add_mocap`'s); returns its `target_estimate` port."""
-    params = params or load_target_estimator_params()
-    estimator = builder.AddNamedSystem(name, TargetEstimator(
-        Pattern(load_pattern_params(pattern_file)), params))
+    """Adds the target estimator of `params` (looking for `params.pattern`) reading the vehicle's
+    `down_image` and a `state_estimate` (STATE_ESTIMATE, e.g. `add_mocap`'s); returns its
+    `target_estimate` port."""
+    estimator = builder.AddNamedSystem(name, TargetEstimator(Pattern(params.pattern), params))
     builder.Connect(down_image_port, estimator.GetInputPort("down_image"))
     builder.Connect(state_estimate_port, estimator.GetInputPort("state_estimate"))
     return TargetPerceptionPorts(estimator.GetOutputPort("target_estimate"),

@@ -10,13 +10,11 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from alight.diagrams.onboard.controllers import ControllersConfig, make_controller
 from alight.diagrams.onboard.mocap import add_mocap
-from alight.diagrams.onboard.mpc_loop import load_linear_model, load_linear_mpc
 from alight.diagrams.running.run_log import RunLoggers, add_run_logging
 from alight.systems.boundary import CONTROLLER_STATUS, REFERENCE, STATE_ESTIMATE
 from alight.systems.control import analytic_reference as ref
 from alight.systems.control.arm_gate import ArmGate
 from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
-from alight.systems.control.linear_mpc import LinearMpc
 from alight.systems.control.timed_switch import TimedSwitch
 from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults
 from alight.systems.sensors.mocap import MocapParams
@@ -33,14 +31,6 @@ class ControllerLoop:
     reference_port: object
 
 
-def make_track_controller(name: str, config: ControllersConfig):
-    """The flight-stack controllers by name (`make_controller`), or the landing paper's
-    `linear_mpc` with its parameters from models/linear_model.yaml and models/linear_mpc.yaml."""
-    if name == "linear_mpc":
-        return LinearMpc(load_linear_model(), load_linear_mpc())
-    return make_controller(name, config)
-
-
 def add_arm_gate(builder, command_port, name: str, idle: float = 0.5):
     """An `ArmGate` on `command_port`: arm request from t = 0, thrust from `idle` s on (the
     flight controller arms only at low thrust; the force controllers ramp up on their own)."""
@@ -53,11 +43,11 @@ def add_arm_gate(builder, command_port, name: str, idle: float = 0.5):
     return gate.GetOutputPort("fc_command")
 
 
-def add_faulty_mocap(builder, vehicle, period: float, faults: EstimateFaultParams | None = None,
-                     mocap: MocapParams | None = None):
-    """Mocap odometry of `vehicle` and, when `faults` is active, the fault injector after it:
-    (the true mocap port, the port the controllers read)."""
-    mocap_port = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap or MocapParams())
+def add_faulty_mocap(builder, vehicle, period: float, faults: EstimateFaultParams | None,
+                     mocap: MocapParams):
+    """Mocap `mocap` of `vehicle` and, when `faults` is given and active, the fault injector
+    after it: (the true mocap port, the port the controllers read)."""
+    mocap_port = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap)
     if faults is None or not faults.active:
         return mocap_port, mocap_port
     injector = builder.AddNamedSystem("estimate_faults", EstimateFaults(faults))
@@ -70,9 +60,10 @@ def add_faulty_mocap(builder, vehicle, period: float, faults: EstimateFaultParam
 
 def add_controller_loop(builder, vehicle_diagram, controllers_config: ControllersConfig,
                         trajectory: ref.Trajectory, names: list[str], start_times: list[float],
-                        faults: EstimateFaultParams | None = None,
-                        mocap: MocapParams | None = None) -> ControllerLoop:
-    """Vehicle + mocap (+ fault injector) + the named controllers, controller i active from
+                        faults: EstimateFaultParams | None, mocap: MocapParams) -> ControllerLoop:
+    """Vehicle + mocap (+ fault injector when `faults` are given) + the named controllers
+    (`make_controller`: the flight-stack controllers, or the landing paper's `linear_mpc` with
+    `controllers_config.linear_mpc` and `.linear_model`), controller i active from
     start_times[i], following the analytic `trajectory`."""
     vehicle = builder.AddNamedSystem("vehicle", vehicle_diagram)
     mocap_port, estimate = add_faulty_mocap(builder, vehicle, controllers_config.period, faults,
@@ -83,7 +74,7 @@ def add_controller_loop(builder, vehicle_diagram, controllers_config: Controller
     controllers = {}
     for i, name in enumerate(names):
         controller = builder.AddNamedSystem(f"controller_{i}_{name}",
-                                            make_track_controller(name, controllers_config))
+                                            make_controller(name, controllers_config))
         builder.Connect(estimate, controller.GetInputPort("state_estimate"))
         builder.Connect(reference.GetOutputPort("reference"), controller.GetInputPort("reference"))
         builder.Connect(switch.GetOutputPort(f"active_{i}"), controller.GetInputPort("active"))

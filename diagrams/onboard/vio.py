@@ -10,6 +10,7 @@ from alight.models import model_path
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.params import load_params
 from alight.systems.sensors.camera_faults import CameraBlackout
+from alight.systems.sensors.mocap import MocapParams
 from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.vio.estimator import VioParams
 from alight.systems.vio.odometry import VIO_ODOMETRY, VisualInertialOdometry
@@ -23,11 +24,11 @@ def load_rgbd_camera_params(filename: str = "rgbd_camera.yaml") -> RgbdCameraPar
     return load_params(RgbdCameraParams, model_path(filename))
 
 
-def add_vio(builder, vehicle, params: VioParams | None = None, name: str = "vio",
+def add_vio(builder, vehicle, params: VioParams, name: str = "vio",
             blackouts=None) -> VisualInertialOdometry:
     """The VIO on the vehicle's `imu` and `rgbd` ports; `blackouts` [(start, end), ...] [s] blank
     the camera in those windows (a sensor fault, simulation only)."""
-    vio = builder.AddNamedSystem(name, VisualInertialOdometry(params or load_vio_params()))
+    vio = builder.AddNamedSystem(name, VisualInertialOdometry(params))
     builder.Connect(vehicle.GetOutputPort("imu"), vio.GetInputPort("imu"))
     rgbd = vehicle.GetOutputPort("rgbd")
     if blackouts:
@@ -38,7 +39,7 @@ def add_vio(builder, vehicle, params: VioParams | None = None, name: str = "vio"
     return vio
 
 
-def vio_odometry(params: VioParams | None = None):
+def vio_odometry(params: VioParams):
     """The odometry builder `(builder, vehicle) -> STATE_ESTIMATE port` of the VIO."""
     return lambda builder, vehicle: add_vio(builder, vehicle, params).GetOutputPort(
         "state_estimate")
@@ -46,20 +47,24 @@ def vio_odometry(params: VioParams | None = None):
 
 class VioRun:
     """An odometry builder that adds the VIO and remembers it, and a `log(builder, loggers)` that
-    records its `odometry` and `state_estimate` streams. `closed_loop=False`: mocap flies."""
+    records its `odometry` and `state_estimate` streams. `closed_loop=False`: mocap (`mocap`)
+    flies."""
 
-    def __init__(self, params: VioParams | None = None, closed_loop: bool = True,
-                 blackouts=None):
-        self.params = params or load_vio_params()
+    def __init__(self, params: VioParams, closed_loop: bool = True, blackouts=None,
+                 mocap: MocapParams | None = None):
+        if not closed_loop and mocap is None:
+            raise ValueError("VioRun(closed_loop=False) flies on mocap: give its MocapParams")
+        self.params = params
         self.closed_loop = closed_loop
         self.blackouts = blackouts
+        self.mocap = mocap
         self.vio = None
 
     def __call__(self, builder, vehicle):
         self.vio = add_vio(builder, vehicle, self.params, blackouts=self.blackouts)
         if self.closed_loop:
             return self.vio.GetOutputPort("state_estimate")
-        return mocap_odometry()(builder, vehicle)
+        return mocap_odometry(self.mocap)(builder, vehicle)
 
     def log(self, builder, loggers) -> None:
         loggers.add(builder, "vio_odometry", self.vio.GetOutputPort("odometry"), VIO_ODOMETRY,

@@ -16,10 +16,10 @@ from alight.diagrams.onboard.controllers import ControllersConfig, load_controll
 from alight.diagrams.onboard.estimation import BankOdometry
 from alight.diagrams.onboard.landoff import LANDED, add_landoff_loop
 from alight.diagrams.onboard.mpc_loop import (MpcLoop, add_mpc_control, add_mpc_logging,
-                                              load_linear_model, load_linear_mpc)
+                                              load_linear_model, load_linear_mpc, mocap_odometry)
 from alight.diagrams.onboard.track import add_faulty_mocap
 from alight.diagrams.onboard.uav import FlightPlan, load_uav_manager_params
-from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params
+from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params, load_vio_params
 from alight.diagrams.running.mission import Mission
 from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
@@ -37,6 +37,7 @@ from alight.systems.estimation.bank import BankParams
 from alight.systems.mission.scripted_reference import ScriptedReference
 from alight.systems.mission.waypoints import WaypointMissionParams
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
+from alight.systems.sensors.mocap import MocapParams
 from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.landoff_tracker import (LandoffTrackerParams,
@@ -44,9 +45,8 @@ from alight.systems.tracking.landoff_tracker import (LandoffTrackerParams,
 from alight.systems.vio.estimator import VioParams
 
 
-def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port, meshcat=None,
-                 mpc_params: LinearMpcParams | None = None,
-                 model: LinearModelParams | None = None, odometry=None,
+def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port,
+                 mpc_params: LinearMpcParams, model: LinearModelParams, odometry, meshcat=None,
                  estimate_filter=None) -> MpcLoop:
     """The simulated vehicle of `config` closed by `add_mpc_control` (arguments as there)."""
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
@@ -78,22 +78,26 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
 
 def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: int = 0,
                   mpc_params: LinearMpcParams | None = None, estimate_filter=None,
-                  odometry=None, log=None) -> RunLog:
+                  odometry=None, log=None, model: LinearModelParams | None = None) -> RunLog:
     """Arms, then follows the scripted reference `fn(t) -> (p_W, v_W)` with the MPC for
     `duration` s (experiments, tests and benchmarks of the closed loop; `odometry` and `log` as
-    in `fly_waypoints`)."""
+    in `fly_waypoints`; the MPC's `mpc_params` and `model` default to models/linear_mpc.yaml and
+    models/linear_model.yaml)."""
+    mpc_params = load_linear_mpc() if mpc_params is None else mpc_params
+    model = load_linear_model() if model is None else model
+    odometry = mocap_odometry(MocapParams()) if odometry is None else odometry
     builder = DiagramBuilder()
     reference = builder.AddNamedSystem("reference", ScriptedReference(fn))
     loop = add_mpc_loop(builder, config, reference.GetOutputPort("reference"),
-                        reference.GetOutputPort("arm"), mpc_params=mpc_params,
-                        estimate_filter=estimate_filter, odometry=odometry)
+                        reference.GetOutputPort("arm"), mpc_params, model, odometry,
+                        estimate_filter=estimate_filter)
     loggers = add_mpc_logging(builder, loop, reference.GetOutputPort("reference"))
     if log is not None:
         log(builder, loggers)
     simulator = simulate(builder.Build(), duration, seed)
     write_run_folder(run_dir, loggers, simulator, {
         "command": "fly_reference", "seed": seed, "duration": duration, "config": config,
-        "mpc": mpc_params or load_linear_mpc()})
+        "mpc": mpc_params})
     return RunLog(run_dir)
 
 
@@ -102,22 +106,25 @@ def fly_bank(config, params: BankParams, duration: float, run_dir, seed: int = 0
     """Takes off to `hold` (in the anchor frame) and holds it for `duration` s with the linear
     MPC on the bank's estimate (tests, bench, notebook). Returns the RunLog, with the streams
     `bank_estimate` and `bank_status` besides the MPC loop's."""
-    odometry = BankOdometry(params, request=request, sensors=sensors)
+    model = load_linear_model()
+    odometry = BankOdometry(params, model, request=request, sensors=sensors)
     p_hold = np.asarray(hold, float)
     return fly_reference(config, lambda t: (p_hold, np.zeros(3)), duration, run_dir, seed,
-                         odometry=odometry, log=odometry.log)
+                         odometry=odometry, log=odometry.log, model=model)
 
 
 def fly_vio(config, waypoints, seed: int = 0, run_dir=None, closed_loop: bool = True,
             camera: RgbdCameraParams | None = None, params: VioParams | None = None,
             blackouts=None):
-    """Flies `waypoints` (`fly_waypoints`) with the VIO on the forward camera (`camera`, default
-    models/rgbd_camera.yaml) in the loop, or beside mocap (`closed_loop=False`)."""
+    """Flies `waypoints` (`fly_waypoints`) with the VIO (`params`, default models/vio.yaml) on
+    the forward camera (`camera`, default models/rgbd_camera.yaml) in the loop, or beside mocap
+    (`closed_loop=False`)."""
     config = dc.replace(config, rgbd_camera=camera or load_rgbd_camera_params())
+    params = load_vio_params() if params is None else params
     if config.rgbd_camera.source == "none":
         raise ValueError("the VIO needs the forward RGB-D camera: rgbd_camera.source is none")
     return fly_waypoints(config, waypoints, seed=seed, run_dir=run_dir,
-                         odometry=VioRun(params, closed_loop, blackouts))
+                         odometry=VioRun(params, closed_loop, blackouts, MocapParams()))
 
 
 def fly_profile(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
@@ -177,7 +184,7 @@ def fly_managed(vehicle_config: SimVehicleConfig, trajectory: ref.Trajectory, se
     controllers_config = controllers_config or config.controller_params
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
-    _, estimate = add_faulty_mocap(builder, vehicle, config.period, faults)
+    _, estimate = add_faulty_mocap(builder, vehicle, config.period, faults, MocapParams())
     goal = builder.AddNamedSystem("goal", ref.AnalyticReference(trajectory, config.period))
     request = switch_request_source(builder) if switch_request_source else None
     managed = add_control_manager(builder, config, controllers_config, estimate,
@@ -210,7 +217,7 @@ def fly_landoff(vehicle_config: SimVehicleConfig, schedule: list[tuple[float, ob
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
     estimate, tracker, feedback, command = add_landoff_loop(
-        builder, vehicle, controllers_config, tracker_params, schedule, controller)
+        builder, vehicle, controllers_config, tracker_params, schedule, MocapParams(), controller)
     period = tracker_params.period
     loggers = add_run_logging(builder, vehicle, command, period)
     loggers.add(builder, "state_estimate", estimate, STATE_ESTIMATE, period)

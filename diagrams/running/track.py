@@ -31,6 +31,7 @@ from alight.systems.boundary import GROUND_TRUTH
 from alight.systems.control import analytic_reference as ref
 from alight.systems.params import bounded, choice
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
+from alight.systems.sensors.mocap import MocapParams
 
 TRAJECTORIES = ("circle", "steps", "hover")
 TRACK_CONTROLLERS = ("se3", "mpc", "linear_mpc")
@@ -134,7 +135,7 @@ def fly_track(vehicle_config: SimVehicleConfig, experiment: TrackExperiment, see
         names, starts = names + ["failsafe"], starts + [experiment.failsafe_at]
     builder = DiagramBuilder()
     loop = add_controller_loop(builder, vehicle_diagram, controllers_config, trajectory, names,
-                               starts, faults)
+                               starts, faults, MocapParams())
     loggers = add_loop_logging(builder, loop, controllers_config.period)
     diagram = builder.Build()
     if duration is None:

@@ -23,10 +23,10 @@ from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import STATE_ESTIMATE, TARGET_ESTIMATE, CameraFrame, VectorLayout
-from alight.systems.params import bounded
+from alight.systems.params import bounded, param_file
 from alight.systems.perception.detector import (DetectorParams, PatternDetector, Rectifier)
 from alight.systems.perception.keypoint_tracker import KeypointTracker, KeypointTrackerParams
-from alight.systems.perception.pattern import CORNER_IDS, Pattern
+from alight.systems.perception.pattern import CORNER_IDS, Pattern, PatternParams
 from alight.systems.perception.target_ekf import TargetEkf, TargetEkfParams
 from alight.systems.rotations import conjugate, quaternion_product, rotation_matrix
 from alight.systems.sensors.down_camera_lens import Lens
@@ -44,6 +44,8 @@ class TargetEstimatorParams:
     detector: DetectorParams = dc.field(default_factory=DetectorParams)
     tracker: KeypointTrackerParams = dc.field(default_factory=KeypointTrackerParams)
     ekf: TargetEkfParams = dc.field(default_factory=TargetEkfParams)
+    # the landing pattern the estimator looks for (its `Pattern`), as printed on the platform
+    pattern: PatternParams = param_file(PatternParams, "target_pattern.yaml")
 
 
 # `perception_status`: frames processed, frames skipped (no camera pose at their stamp), detections,
