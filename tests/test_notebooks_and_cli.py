@@ -10,10 +10,12 @@ from nbclient import NotebookClient
 
 from alight.diagrams.cli import COMMANDS, main
 from alight.diagrams.running.run_log import read_run
+from alight.diagrams.scenario import load_scenario
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 
 
+@pytest.mark.mission
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
 def test_notebook_executes(path, hover_run, tmp_path, monkeypatch):
     monkeypatch.setenv("ALIGHT_RUN_DIR", str(hover_run.path))
@@ -45,8 +47,11 @@ def test_hover_command_writes_a_run_folder_and_a_replay(tmp_path, capsys):
     assert "max altitude" in out and str(tmp_path / "run") in out
     run = read_run(tmp_path / "run")
     assert run.metadata["seed"] == 4
-    assert run.metadata["config"]["wind"]["mean_speed"] == pytest.approx(10 / 3.6)
-    assert set(run.streams) == {"fc_command", "fc_status", "fc_attitude", "ground_truth", "imu"}
+    scenario = load_scenario(run.path / "scenario.yaml")     # the run folder pins its run
+    assert scenario.vehicle.wind.mean_speed == pytest.approx(10 / 3.6)
+    assert scenario.random_seed == 4 and scenario.mission.duration == 2.5
+    assert set(run.streams) == {"fc_command", "fc_status", "fc_attitude", "ground_truth", "imu",
+                                "timing"}
     html = replay.read_text()
     assert html.startswith("<!DOCTYPE html>") or "<html" in html[:200].lower()
     # The scene geometry and the animation are embedded as base64 Meshcat commands.
