@@ -15,6 +15,8 @@ from alight.systems.managers.control_manager import FailsafeCause, ManagerMode, 
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
 from alight.systems.rotations import tilt_deg
 
+pytestmark = pytest.mark.mission
+
 ALTITUDE = 1.5
 SLOW = (1.0, 1.0, 4.0)   # m/s, m/s^2, m/s^3 of the moves below
 

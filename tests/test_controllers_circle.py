@@ -7,6 +7,8 @@ import pytest
 from alight.diagrams.analysis.track import score
 from alight.diagrams.running.track import TrackExperiment, fly_track
 
+pytestmark = pytest.mark.mission
+
 
 def circle(heading):
     return TrackExperiment(trajectory="circle", controller="se3", radius=5.0, speed=7.0,

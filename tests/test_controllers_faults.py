@@ -6,6 +6,8 @@ import pytest
 from alight.diagrams.analysis.track import score
 from alight.diagrams.running.track import TrackExperiment, fly_track
 
+pytestmark = pytest.mark.mission
+
 NOISE = 1.0        # m and m/s, sigma of M Fig. 12
 TILT_BOUND = 20.0  # deg: the MPC stays under it with sigma = 1 m, the SE(3) controller does not
 

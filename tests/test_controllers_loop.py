@@ -11,6 +11,8 @@ from alight.systems.plant.drag import drag_force_B
 from alight.systems.plant.hexacopter import load_hexacopter_params
 from alight.systems.rotations import rotation_matrix
 
+pytestmark = pytest.mark.mission
+
 NOMINAL_MASS = 2.5
 HEAVY_MASS = 1.2 * NOMINAL_MASS
 WIND = 5.0  # m/s toward +y (18 km/h)

@@ -12,6 +12,8 @@ from alight.models import model_path
 from alight.systems.rotations import heading, rotation_matrix
 from alight.systems.sensors.position_fix import PositionFixParams
 
+pytestmark = pytest.mark.mission
+
 RTK_ON, RTK_OFF, DURATION = 5.0, 10.0, 13.0
 
 

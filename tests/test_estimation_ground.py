@@ -164,6 +164,7 @@ def test_the_control_manager_forwards_the_active_controllers_desired_acceleratio
     assert np.all(np.isnan(dut.GetOutputPort("desired_acceleration").Eval(context)))
 
 
+@pytest.mark.mission
 def test_the_managed_stack_lands_on_the_bank_and_disarms_with_the_estimate_on_the_ground(
         tmp_path):
     """Take off, go 2 m, land, on the bank's own frames (the arbiter switches to RTK on the

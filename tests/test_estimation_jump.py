@@ -11,6 +11,8 @@ from alight.models import model_path
 from alight.systems.params import load_params
 from alight.systems.sensors.position_fix import PositionFixParams
 
+pytestmark = pytest.mark.mission
+
 JUMP_TIME, DURATION = 6.0, 12.0
 SINGLE = """
 period: 0.01

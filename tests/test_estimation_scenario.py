@@ -56,6 +56,7 @@ def test_the_direct_stack_is_built_on_the_anchored_bank(tmp_path):
     assert onboard.parts.loop.state_estimate_port == odometry.bank.anchored
 
 
+@pytest.mark.mission
 def test_alight_land_takes_off_on_the_declared_bank(tmp_path):
     """The first 6 s of the field landing with `estimator: bank`: the mission climbs on the
     bank's estimate (in the GNSS filter's frame, 1.8 m from the truth by the GNSS bias)."""

@@ -29,6 +29,7 @@ def landing(tmp_path_factory):
     return status, RunLog(run_dir)
 
 
+@pytest.mark.mission
 def test_seeded_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     status, run = landing
     assert status == 0
@@ -39,6 +40,7 @@ def test_seeded_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     assert (run.path / "paths.png").stat().st_size > 10_000     # like L Fig. 12
 
 
+@pytest.mark.mission
 def test_landed_disarms_and_the_vehicle_rests_on_the_moving_platform(landing):
     _, run = landing
     status = run["mission_status"]
@@ -53,6 +55,7 @@ def test_landed_disarms_and_the_vehicle_rests_on_the_moving_platform(landing):
     assert np.linalg.norm(v_rel) < 0.3                            # and carries the vehicle
 
 
+@pytest.mark.mission
 def test_target_swerving_in_landing_phase_2_is_scored_failed_by_the_physics(landing, tmp_path):
     """The seed-0 landing again, with the car pulled sharply aside (90 deg/s for 0.8 s) just after
     Landing Phase 2 began (a scheduled pull draws no noise, so the run is the same until then): the
@@ -84,6 +87,7 @@ def _rows(frame):
     return frame.drop(columns=["wall_time", "run_dir"]).reset_index(drop=True)
 
 
+@pytest.mark.mission
 def test_campaign_resumes_and_a_dask_cluster_gives_the_same_runs(tmp_path):
     from distributed import Client, LocalCluster
     scenario = _short_scenario(tmp_path)

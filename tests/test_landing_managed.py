@@ -32,6 +32,7 @@ def landing(tmp_path_factory):
     return status, RunLog(run_dir)
 
 
+@pytest.mark.mission
 def test_seeded_managed_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     status, run = landing
     assert status == 0
@@ -40,6 +41,7 @@ def test_seeded_managed_landing_at_2_ms_succeeds_judged_by_the_physics(landing):
     assert run.metadata["stack"] == "landing_managed" and run.metadata["controller"] == "linear_mpc"
 
 
+@pytest.mark.mission
 def test_the_modes_are_flown_by_the_trackers_the_control_manager_switches_to(landing):
     """Taking Off: landoff; Waypoint: MPC tracker; Follow and the landing phases: target tracker;
     each switch within a mission tick (+ the manager's) of the mode change; linear_mpc flies

@@ -322,6 +322,7 @@ def control_error(run) -> np.ndarray:
                           - run.field("state_estimate", "p_EB").to_numpy()[:n], axis=1)
 
 
+@pytest.mark.mission
 def test_take_off_and_landing_with_touchdown_and_disarm(vehicle_config, tmp_path):
     """Take off 1.5 m on SE(3), hover, land: touchdown detected from the thrust, disarmed."""
     p0 = resting_position(make_sim_vehicle(vehicle_config))
@@ -363,6 +364,7 @@ def tethered(vehicle_config, tmp_path_factory):
     return runs, p0
 
 
+@pytest.mark.mission
 def test_admittance_keeps_a_tethered_take_off_gentle(tethered):
     """Over the first 5 s. KNOWN: held longer, SE(3)'s mass estimate M(37) learns the rope's pull
     and winds the thrust up to its limit anyway (10 s: 20 % of the held ticks at full thrust,

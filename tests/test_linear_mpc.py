@@ -150,6 +150,7 @@ def step_run(vehicle_config, tmp_path_factory):
     return fly_reference(vehicle_config, step, 16.0, tmp_path_factory.mktemp("runs") / "step")
 
 
+@pytest.mark.mission
 def test_position_step_settles_with_bounded_overshoot_and_tilt(step_run):
     truth = _after(step_run, "ground_truth", 8.0)
     x = truth["p_WB_0"].to_numpy()
@@ -167,6 +168,7 @@ def test_position_step_settles_with_bounded_overshoot_and_tilt(step_run):
     assert np.degrees(np.abs(commanded)).max() <= params.max_tilt_command + 0.1
 
 
+@pytest.mark.mission
 @pytest.mark.parametrize("with_velocity, bound", [(True, 0.2), (False, None)])
 def test_moving_reference_lag_with_and_without_velocity(vehicle_config, tmp_path, with_velocity,
                                                         bound):
@@ -184,6 +186,7 @@ def test_moving_reference_lag_with_and_without_velocity(vehicle_config, tmp_path
         assert lag.mean() > 0.5, f"lag {lag.mean():.3f} m"
 
 
+@pytest.mark.mission
 @pytest.mark.parametrize("gain", [0.0, 0.05])
 def test_hover_in_15_kmh_gusty_wind_offset_and_its_removal(vehicle_config, tmp_path, gain):
     """The paper's MPC (gain 0) has no integral action: the wind leaves a steady offset (L Sec. 8);
@@ -218,6 +221,7 @@ def _jump_filter(builder, port):
     return faults.GetOutputPort("state_estimate")
 
 
+@pytest.mark.mission
 @pytest.mark.parametrize("soft", [True, False])
 def test_estimate_jump_soft_constraints_bound_speed_and_tilt(vehicle_config, tmp_path, soft):
     params = copy.deepcopy(load_linear_mpc())

@@ -169,6 +169,7 @@ def sleep_sim(link, duration):
              f"{duration} s simulated")
 
 
+@pytest.mark.mission
 def test_sim_autopilot_refuses_offboard_and_arm_then_fails_safe_when_offboard_is_lost(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot")
     link = None

@@ -28,6 +28,7 @@ RATE = 1.0
 PROFILE = "hil_hover_profile.yaml"  # 15.6 s: climb to ~1 m, hover, descend, cut thrust
 
 
+@pytest.mark.mission
 def test_hil_hover_against_the_sim_autopilot_takes_off_hovers_and_lands(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot", realtime_rate=RATE)
     try:
@@ -116,6 +117,7 @@ def test_hil_refuses_fly_and_land_without_the_channel_that_carries_the_mocap(cap
 WAYPOINTS = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]])
 
 
+@pytest.mark.mission
 def test_hil_fly_visits_the_waypoints_on_the_channel_mocap_and_lands(tmp_path):
     status, text, sim, onboard = fly_hil(tmp_path, (
         "--mission", "fly", "--waypoints", "; ".join(",".join(map(str, w)) for w in WAYPOINTS)))
@@ -139,6 +141,7 @@ def test_hil_fly_visits_the_waypoints_on_the_channel_mocap_and_lands(tmp_path):
     assert np.percentile(error, 99) < 0.011, np.percentile(error, 99)
 
 
+@pytest.mark.mission
 def test_hil_land_finds_the_moving_target_through_the_channel_and_lands_on_it(tmp_path):
     """The field test at 2 m/s with a 14 s approach (models/scenario_field_hil.yaml)."""
     scenario_args = ("--scenario", "scenario_field_hil.yaml", "--target-speed", "2")

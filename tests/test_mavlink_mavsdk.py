@@ -16,6 +16,8 @@ from alight.diagrams.running.run_log import read_run
 from alight.systems.rotations import rotation_matrix
 from mavlink_fake import SimAutopilotProcess
 
+pytestmark = pytest.mark.mission
+
 
 def wait_for(condition, timeout, what):
     deadline = time.monotonic() + timeout

@@ -2,11 +2,14 @@
 over UDP loopback: the unchanged managed stack takes off, goes to a point and lands, judged by the
 simulated autopilot's physics."""
 import numpy as np
+import pytest
 
 from alight.diagrams.running.run_log import read_run
 from alight.hw.frame_channel import default_frame_address
 from alight.diagrams.running.mission import mavlink_mission
 from mavlink_fake import SimAutopilotProcess
+
+pytestmark = pytest.mark.mission
 
 
 def test_mission_api_flies_the_sim_autopilot_over_mavlink(tmp_path):

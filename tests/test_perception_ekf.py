@@ -76,6 +76,7 @@ def _errors(run, field):
     return run["estimate"][:, TARGET_ESTIMATE.slice(field)] - run["truth"][:, GROUND_TRUTH.slice(field)]
 
 
+@pytest.mark.mission
 def test_estimator_initializes_from_a_detection_and_tracks_keypoints(target_pass):
     run = target_pass
     status = run["status"][-1]
@@ -87,6 +88,7 @@ def test_estimator_initializes_from_a_detection_and_tracks_keypoints(target_pass
     assert PERCEPTION_STATUS.get(status, "skipped") == 0
 
 
+@pytest.mark.mission
 def test_position_and_velocity_errors_after_convergence(target_pass):
     run = target_pass
     t = run["t"]
@@ -105,6 +107,7 @@ def test_position_and_velocity_errors_after_convergence(target_pass):
     assert np.linalg.norm(dv, axis=1).max() < 0.3
 
 
+@pytest.mark.mission
 def test_velocity_converges_within_a_second_of_the_first_detection(target_pass):
     run = target_pass
     t = run["t"]
@@ -118,6 +121,7 @@ def test_velocity_converges_within_a_second_of_the_first_detection(target_pass):
     assert converged_after < 1.0
 
 
+@pytest.mark.mission
 def test_nees_is_consistent_with_the_chi_square_bounds(target_pass):
     """Normalized estimation error squared of position and velocity (6 dof; the output carries
     the covariance's diagonal). Samples 0.5 s apart (about the filter's correlation time) in the
@@ -139,6 +143,7 @@ def test_nees_is_consistent_with_the_chi_square_bounds(target_pass):
     assert low <= nees.mean() <= high
 
 
+@pytest.mark.mission
 def test_estimate_keeps_predicting_and_covariance_grows_without_measurements(target_pass):
     run = target_pass
     t, estimate = run["t"], run["estimate"]

@@ -79,6 +79,7 @@ def _streams(run: RunLog) -> dict[str, pd.DataFrame]:
     return {name: run[name] for name in run.streams if name != "timing"}
 
 
+@pytest.mark.mission
 def test_a_run_folder_flies_again_from_its_scenario_yaml_stream_for_stream(tmp_path):
     """The first 8 s of the field landing (take-off: every system runs), then the same run from
     the run folder's scenario.yaml alone: every logged stream identical, bit for bit (`timing`,

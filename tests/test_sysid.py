@@ -28,6 +28,7 @@ def sysid(vehicle_config, tmp_path_factory):
     return report, run_dir
 
 
+@pytest.mark.mission
 def test_identified_attitude_loop_fits_the_validation_flight(sysid):
     report, run_dir = sysid
     assert report.vaf["pitch"] >= 0.90, report.lines()
@@ -36,6 +37,7 @@ def test_identified_attitude_loop_fits_the_validation_flight(sysid):
     assert (run_dir / "sysid_validation.png").stat().st_size > 10_000  # the L Fig. 6 plot
 
 
+@pytest.mark.mission
 def test_identified_damping_matches_the_plant_drag(sysid, vehicle_config):
     report, _ = sysid
     c = np.array([report.params.c_x, report.params.c_y, report.params.c_z])
@@ -46,6 +48,7 @@ def test_identified_damping_matches_the_plant_drag(sysid, vehicle_config):
                                  err_msg=f"identified {c}, plant {truth}")
 
 
+@pytest.mark.mission
 def test_written_model_is_what_the_mpc_reads(sysid):
     report, run_dir = sysid
     params = load_params(LinearModelParams, run_dir / "model.yaml")
@@ -71,6 +74,7 @@ def _fake_ulog(run: RunLog, drop: str | None = None):
     return SimpleNamespace(data_list=data_list)
 
 
+@pytest.mark.mission
 def test_attitude_identification_from_a_log_in_px4_frames(sysid, monkeypatch):
     _, run_dir = sysid
     run = RunLog(run_dir / "validation")
@@ -81,6 +85,7 @@ def test_attitude_identification_from_a_log_in_px4_frames(sysid, monkeypatch):
     assert report.pitch.dc_gain() == pytest.approx(1.0, abs=0.15)
 
 
+@pytest.mark.mission
 def test_log_without_the_setpoint_topic_is_refused_naming_it(sysid, monkeypatch):
     _, run_dir = sysid
     fake = _fake_ulog(RunLog(run_dir / "validation"), drop="vehicle_attitude_setpoint")

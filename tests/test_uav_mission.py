@@ -12,6 +12,8 @@ from alight.systems.estimation.frames import FrameSwitch
 from alight.systems.managers.control_manager import FailsafeCause, ManagerMode
 from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults
 
+pytestmark = pytest.mark.mission
+
 
 def frame_switch(at, p_OldNew, yaw):
     q = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
