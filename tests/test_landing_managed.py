@@ -9,6 +9,7 @@ from alight.diagrams.cli import main
 from alight.diagrams.analysis.landing import mission_transitions
 from alight.diagrams.scenario import load_scenario
 from alight.diagrams.analysis.landing import tracker_switches
+from alight.diagrams.onboard.control_manager import load_control_manager_config
 from alight.diagrams.onboard.landing_managed import landing_manager_config
 from alight.diagrams.running.run_log import RunLog
 from alight.systems.managers.control_manager import ManagerMode
@@ -101,4 +102,4 @@ def test_requests_map_the_mission_modes_to_trackers_and_goals():
     with pytest.raises(ValueError, match="target_tracker 'landing'"):
         LandingRequests(params, TRACKERS, target_tracker="landing")
     with pytest.raises(ConfigError, match="failsafe"):
-        landing_manager_config("failsafe")
+        landing_manager_config("failsafe", load_control_manager_config())

@@ -48,7 +48,8 @@ class LandingManagedOnboard:
         return landed_and_disarmed(self.mission, self.vehicle, settle_time)
 
 
-def landing_manager_config(controller: str, config: ControlManagerConfig) -> ControlManagerConfig:
+def landing_manager_config(controller: str,
+                           config: ControlManagerConfig) -> ControlManagerConfig:
     """The control manager `config` flying `controller` from the start with the take-off tracker
     selected; raises ConfigError when `controller` is not one of the listed controllers or the
     trackers of `LandingRequests` are not listed."""
