@@ -6,8 +6,17 @@ the simulated autopilot's endpoint (hw/sim_autopilot.py). Nothing the peer sends
 reader: malformed frames (bad prefix, length or CRC, truncated), unknown message ids, frames from
 other systems and frames whose sequence number goes back are counted and dropped; a handler that
 finds unusable content (non-finite values, bad enums) counts it as rejected.
+
+Where a UDP end sends is decided here, once for both ends: an end that dials (`udpout`) sends to
+the connection string's address, always; an end that listens (`udpin`: the simulated autopilot,
+or a companion bound to a port) has one peer, the source address of a valid frame: CRC good, a
+known message, accepted by the end's `_accepts` (sender and target ids) and in sequence. The first
+valid frame names the peer; another address takes over only after the peer has sent no valid
+frame for `peer_timeout` (a restarted client on a new port). Random bytes, bad frames and frames
+from other systems never move it (docs/hardware.md: what PX4 does).
 """
 import dataclasses as dc
+import errno
 import logging
 import threading
 import time
@@ -65,13 +74,24 @@ class _SequenceTracker:
 
 class MavlinkEndpoint:
     """Base of both link ends. Subclasses implement `_accepts(msg)` (is this frame for us, from
-    our peer?), `_handle(msg, now)` and `clock_ns()` (this end's clock for TIMESYNC)."""
+    our peer?), `_handle(msg, now)` and `clock_ns()` (this end's clock for TIMESYNC).
+    `peer_timeout` [s]: how long a listening UDP end keeps its peer without a valid frame from it
+    before another address may take its place."""
 
-    def __init__(self, transport, system_id: int, component_id: int, datagrams: bool):
+    def __init__(self, transport, system_id: int, component_id: int, datagrams: bool,
+                 peer_timeout: float):
         self._transport = transport
         self._datagrams = datagrams  # UDP: a frame never spans datagrams; resync per datagram
+        # A UDP transport is read and written on its socket, so that each datagram's source is
+        # known and only a valid frame picks the peer (pymavlink's udpin takes every sender).
+        self._socket = getattr(transport, "port", None) if datagrams else None
+        self._listening = self._socket is not None and bool(getattr(transport, "udp_server",
+                                                                    False))
+        self.peer: tuple | None = None  # where a listening UDP end sends; None: nowhere yet
+        self._peer_seen = -float("inf")  # time of the peer's last valid frame
+        self._peer_timeout = peer_timeout
         self._send_lock = threading.Lock()
-        self._encoder = mavlink.MAVLink(_Writer(transport), system_id, component_id)
+        self._encoder = mavlink.MAVLink(_Writer(self), system_id, component_id)
         self._parser = self._new_parser()
         self._sequences = _SequenceTracker()
         self._counter_lock = threading.Lock()
@@ -119,17 +139,31 @@ class MavlinkEndpoint:
             try:
                 if not self._transport.select(0.05):
                     continue
-                data = self._transport.recv(4096)
+                data, source = self._receive()
             except (OSError, ValueError) as e:  # closed under us, device unplugged
                 if self._running:
                     LOG.warning("MAVLink transport error: %s", e)
                     time.sleep(0.05)
                 continue
             if data:
-                self.feed(bytes(data) if not isinstance(data, bytes) else data)
+                self.feed(bytes(data) if not isinstance(data, bytes) else data, source=source)
 
-    def feed(self, data: bytes, now: float | None = None) -> None:
-        """Parses `data` (one datagram, or a piece of a byte stream) and handles what it holds."""
+    def _receive(self) -> tuple[bytes, tuple | None]:
+        """What the transport holds: (one datagram and its source address) on UDP, (bytes, None)
+        on a stream."""
+        if self._socket is None:
+            return self._transport.recv(4096), None
+        try:
+            return self._socket.recvfrom(65535)
+        except OSError as e:
+            if e.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return b"", None
+            raise
+
+    def feed(self, data: bytes, now: float | None = None, source: tuple | None = None) -> None:
+        """Parses `data` (one datagram, or a piece of a byte stream) and handles what it holds;
+        `source` is the datagram's sender (UDP), which a valid frame makes the peer of a
+        listening end."""
         now = time.monotonic() if now is None else now
         with self._counter_lock:
             self.counters.bytes_received += len(data)
@@ -143,9 +177,9 @@ class MavlinkEndpoint:
                 messages.append(None)
             self._parser = self._new_parser()
         for message in messages:
-            self._dispatch(message, now)
+            self._dispatch(message, now, source)
 
-    def _dispatch(self, message, now: float) -> None:
+    def _dispatch(self, message, now: float, source: tuple | None = None) -> None:
         counters = self.counters
         if message is None or message.get_type() == "BAD_DATA":
             with self._counter_lock:
@@ -168,6 +202,8 @@ class MavlinkEndpoint:
                 counters.out_of_order += 1
                 return
             counters.messages += 1
+        if self._listening and source is not None:
+            self._valid_frame_from(source, header, now)
         try:
             if message.get_type() == "TIMESYNC":
                 self._timesync(message, now)
@@ -180,6 +216,15 @@ class MavlinkEndpoint:
                 first = counters.handler_errors <= 3
             if first:
                 LOG.exception("MAVLink handler failed on %s", message.get_type())
+
+    def _valid_frame_from(self, source: tuple, header, now: float) -> None:
+        """The peer rule of a listening UDP end (module docstring)."""
+        if source == self.peer:
+            self._peer_seen = now
+        elif self.peer is None or now - self._peer_seen > self._peer_timeout:
+            self.peer, self._peer_seen = source, now
+            LOG.info("MAVLink peer: %s:%d (system %d, component %d)", source[0], source[1],
+                     header.srcSystem, header.srcComponent)
 
     def _timesync(self, message, now: float) -> None:
         """Answers a TIMESYNC request (tc1 = 0) with this end's clock; passes replies on."""
@@ -225,13 +270,21 @@ def addressed_to(message, system_id: int, component_id: int | None = None) -> bo
 
 
 class _Writer:
-    """pymavlink's encoder writes to `file.write`; a transport may reject writes when closed."""
+    """pymavlink's encoder writes to `file.write`: to the peer on a listening UDP end (nothing
+    before a valid frame named it), else to the transport; a transport may reject writes when
+    closed."""
 
-    def __init__(self, transport):
-        self._transport = transport
+    def __init__(self, endpoint: MavlinkEndpoint):
+        self._endpoint = endpoint
 
     def write(self, buf):
+        endpoint = self._endpoint
         try:
-            self._transport.write(buf)
+            if endpoint._listening:
+                peer = endpoint.peer
+                if peer is not None:
+                    endpoint._socket.sendto(buf, peer)
+            else:
+                endpoint._transport.write(buf)
         except OSError:
             pass

@@ -138,7 +138,8 @@ class MavlinkLink(MavlinkEndpoint):
 
     def __init__(self, transport, params: LinkParams, clock: WallClock, datagrams: bool,
                  name: str = ""):
-        super().__init__(transport, params.system_id, params.component_id, datagrams)
+        super().__init__(transport, params.system_id, params.component_id, datagrams,
+                         peer_timeout=params.heartbeat_timeout)
         self.params = params
         self.clock = clock
         self.name = name

@@ -67,6 +67,8 @@ class SimAutopilotParams:
     component_id: int = bounded(1, 1, 255)        # MAV_COMP_ID_AUTOPILOT1
     period: float = bounded(0.002, 0.0005, 0.05, "s")  # bridge tick: link <-> simulation
     heartbeat_period: float = bounded(1.0, 0.1, 10.0, "s")
+    # A client silent this long may be replaced by another address (hw/endpoint.py, the peer rule)
+    peer_timeout: float = bounded(3.0, 0.1, 60.0, "s")
     highres_imu_rate: float = bounded(STREAMS["HIGHRES_IMU"], 0.0, 4000.0, "Hz")  # 0: off
     scaled_imu_rate: float = bounded(STREAMS["SCALED_IMU"], 0.0, 4000.0, "Hz")
     attitude_quaternion_rate: float = bounded(STREAMS["ATTITUDE_QUATERNION"], 0.0, 1000.0, "Hz")
@@ -147,7 +149,8 @@ class AutopilotEndpoint(MavlinkEndpoint):
     with the simulation's clock, and queues the rest for the bridge's next tick."""
 
     def __init__(self, transport, params: SimAutopilotParams, clock: SimClock, datagrams: bool):
-        super().__init__(transport, params.system_id, params.component_id, datagrams)
+        super().__init__(transport, params.system_id, params.component_id, datagrams,
+                         params.peer_timeout)
         self.clock = clock
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
         self.statistics = LinkStatistics()
