@@ -41,6 +41,8 @@ FLAGS = {flag.flag.lstrip("-").replace("-", "_"): flag for flag in (
          float, "M_S"),
     Flag("--camera", "vehicle.down_camera.source", "down camera source", str,
          choices=("geometric", "rendered")),
+    Flag("--rgbd-camera", "vehicle.rgbd_camera", "forward RGB-D camera YAML (a path, or a file "
+         "name in models/; its source geometric or rendered)", str, "FILE.yaml"),
     Flag("--estimator", "onboard.estimator", "odometry: mocap, vio (L Sec. 5.1, the forward "
          "RGB-D camera), bank or a filter of the estimator bank", str, "NAME"),
     Flag("--stack", "onboard.stack", "direct: the mission drives the linear MPC; managed: the "
