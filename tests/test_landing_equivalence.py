@@ -1,0 +1,63 @@
+"""The seeded landing flies as it did before the simulation was made faster (issue 18).
+
+`alight land --target-speed 2 --seed 0` (field scenario, geometric down camera, mocap odometry,
+no wind) was recorded before the speed work (commit a828b1c, 1 ms plant step, every force and
+the car's PD drive evaluated at every plant step): landed, e_xy 13.09 cm, 7.06 s from the first
+detection to touchdown, touchdown at 25.56 s and 1.86 m/s, the car at 1.79 m/s, and the mission's
+mode transitions below. The faster simulation (drag sampled at 250 Hz, the car's path evaluated
+by Drake, its PD drive explicit, the stop condition asked at the mission's 20 Hz, ...) must give
+the same landing within these tolerances:
+- the same outcome and the same sequence of modes with the same reasons;
+- every mode transition within 0.1 s (two mission periods) of its recorded time;
+- touchdown within 0.1 s, tracking duration within 0.1 s;
+- e_xy within 2 cm, touchdown speed within 0.15 m/s, the car's speed within 0.05 m/s.
+"""
+import pytest
+
+from alight.diagrams.analysis.landing import mission_transitions, score_landing
+from alight.diagrams.running.runner import run as run_scenario
+from alight.diagrams.scenario import load_scenario
+from alight.systems.mission.landing import Mode, Reason
+
+RECORDED = dict(e_xy=0.1309, tracking_duration=7.06, mission_time=25.56, touchdown_speed=1.859,
+                target_speed=1.790)
+TOLERANCE = dict(e_xy=0.02, tracking_duration=0.1, mission_time=0.1, touchdown_speed=0.15,
+                 target_speed=0.05)
+TRANSITIONS = [(1.05, Mode.TAKING_OFF, Reason.ESTIMATE_VALID),
+               (11.90, Mode.WAYPOINT, Reason.TAKEOFF_HEIGHT),
+               (18.55, Mode.FOLLOW, Reason.DETECTION),
+               (20.30, Mode.WAYPOINT, Reason.DETECTION_TIMEOUT),
+               (20.85, Mode.FOLLOW, Reason.DETECTION),
+               (22.95, Mode.LANDING_P1, Reason.CAUGHT_UP),
+               (24.40, Mode.LANDING_P2, Reason.BELOW_P2_OFFSET),
+               (25.60, Mode.LANDED, Reason.BELOW_LANDED_OFFSET)]
+TRANSITION_TOLERANCE = 0.1  # s
+
+
+@pytest.fixture(scope="module")
+def landing(tmp_path_factory):
+    scenario = load_scenario("field", overrides=["target_motion.speed: 2.0", "random_seed: 0"])
+    run = run_scenario(scenario, run_dir=tmp_path_factory.mktemp("equivalence") / "run",
+                       command="land")
+    impact = scenario.scoring.impact
+    return run, score_landing(run, impact.vertical_speed, impact.horizontal_speed)
+
+
+@pytest.mark.mission
+def test_seeded_landing_scores_as_recorded_before_the_speed_work(landing):
+    _, score = landing
+    assert score.success, score.row()
+    moved = {key: getattr(score, key) - value for key, value in RECORDED.items()}
+    print("moved from the recorded landing:", {k: round(v, 4) for k, v in moved.items()})
+    for key, delta in moved.items():
+        assert abs(delta) <= TOLERANCE[key], f"{key} moved by {delta:+.4f} ({score.row()})"
+
+
+@pytest.mark.mission
+def test_seeded_landing_makes_the_recorded_mode_transitions(landing):
+    run, _ = landing
+    flown = mission_transitions(run)
+    assert [(mode, reason) for _, mode, reason in flown] == \
+        [(mode, reason) for _, mode, reason in TRANSITIONS]
+    for (at, mode, _), (recorded, _, _) in zip(flown, TRANSITIONS):
+        assert abs(at - recorded) <= TRANSITION_TOLERANCE, f"{mode.name} at {at:.2f} s"
