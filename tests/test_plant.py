@@ -133,6 +133,26 @@ def test_drag_force_for_air_relative_velocity(heading):
         assert f_W[0] == pytest.approx(0.25 * wind + 0.06 * wind**2)  # 2.08 N at 15 km/h
 
 
+def test_sampled_drag_holds_the_force_of_its_last_sample():
+    """With a period (the vehicle's 250 Hz), the drag is the same function of the body state
+    and wind, sampled at initialization and every period, held in between."""
+    dut = AerodynamicDrag(body_index=BodyIndex(1), linear=PARAMS.drag_linear,
+                          quadratic=PARAMS.drag_quadratic, period=0.004)
+    context = dut.CreateDefaultContext()
+    state = dut.GetInputPort("body_state")
+    state.FixValue(context, np.r_[1.0, 0, 0, 0, np.zeros(6), 2.0, 0, 0])
+    dut.GetInputPort("wind").FixValue(context, np.zeros(3))
+    simulator = Simulator(dut, context)
+    simulator.Initialize()
+    force = lambda: dut.GetOutputPort("spatial_forces").Eval(context)[0].F_Bq_W.translational()
+    np.testing.assert_allclose(force(), [-(0.25 * 2.0 + 0.06 * 4.0), 0, 0])  # sampled at t = 0
+    simulator.AdvanceTo(0.002)
+    state.FixValue(context, np.r_[1.0, 0, 0, 0, np.zeros(6), 1.0, 0, 0])
+    np.testing.assert_allclose(force(), [-0.74, 0, 0])                       # held
+    simulator.AdvanceTo(0.0041)
+    np.testing.assert_allclose(force(), [-(0.25 + 0.06), 0, 0])              # sampled at 4 ms
+
+
 def test_hovering_vehicle_is_carried_at_the_mean_wind_speed(vehicle_config, tmp_path):
     config = copy.deepcopy(vehicle_config)
     config.wind = WindParams(mean_speed=15 / 3.6, direction=90.0)

@@ -37,6 +37,9 @@ from alight.systems.target.vehicle import TargetParams
 class SimVehicleConfig:
     airframe: HexacopterParams = param_file(HexacopterParams, "hexacopter_f550.yaml")
     time_step: float = bounded(0.001, 1e-4, 0.01, "s")  # discrete MultibodyPlant (SAP contact)
+    # Body drag sampled and held at this period (the flight controller's 250 Hz), 0: at every
+    # plant step (AerodynamicDrag).
+    drag_period: float = bounded(0.004, 0.0, 0.1, "s")
     ground_friction: float = bounded(0.8, 0.0, 2.0)
     initial_position: list[float] = bounded([0.0, 0.0], -1e4, 1e4, "m")  # x, y on the ground
     initial_heading: float = bounded(0.0, -360.0, 360.0, "deg")
@@ -95,7 +98,7 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
         RandomDistribution.kGaussian, 3, config.wind.period))
     builder.Connect(wind_noise.get_output_port(), wind.GetInputPort("noise"))
     drag = builder.AddNamedSystem("drag", AerodynamicDrag(
-        body.index(), params.drag_linear, params.drag_quadratic))
+        body.index(), params.drag_linear, params.drag_quadratic, config.drag_period))
     body_state = plant.get_state_output_port(instance)
     builder.Connect(body_state, drag.GetInputPort("body_state"))
     builder.Connect(wind.GetOutputPort("wind"), drag.GetInputPort("wind"))

@@ -17,28 +17,52 @@ class AerodynamicDrag(LeafSystem):
     """Input  `body_state`     (13) the body's free-joint state [q_WB (w,x,y,z), p_WB, w_WB, v_WB]
     Input  `wind`           (3) air velocity v_WA [m/s, in W]
     Output `spatial_forces` list[ExternallyAppliedSpatialForce] applied at the body origin
+
+    With `period` > 0 the force is sampled every `period` (and at initialization) and held in
+    between, a zero-order hold: the plant then reads a state output, with no Python call at its
+    own step (the drag changes over seconds, its time constant mass / linear coefficient; a hold of
+    a few ms changes it by less than a percent of itself). With `period` 0 it is computed from
+    the inputs at every evaluation.
     """
 
-    def __init__(self, body_index, linear, quadratic):
+    def __init__(self, body_index, linear, quadratic, period: float = 0.0):
         super().__init__()
         self._body_index = body_index
         self._linear = np.array(linear)
         self._quadratic = np.array(quadratic)
         self._state = self.DeclareVectorInputPort("body_state", 13)
         self._wind = self.DeclareVectorInputPort("wind", 3)
+        self._zero = np.zeros(3)
+        if period > 0:
+            self._held = self.DeclareAbstractState(AbstractValue.Make(
+                [self._spatial_force(self._zero)]))
+            self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._sample)
+            self.DeclareInitializationUnrestrictedUpdateEvent(self._sample)
+            self.DeclareStateOutputPort("spatial_forces", self._held)
+            return
         self.DeclareAbstractOutputPort(
             "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
             self._calc, prerequisites_of_calc={self.all_input_ports_ticket()})
         # Runs at every plant step: one force object, re-filled (the output copies it).
-        self._force = ExternallyAppliedSpatialForce()
-        self._force.body_index = body_index
-        self._force.p_BoBq_B = np.zeros(3)
-        self._zero = np.zeros(3)
+        self._force = self._spatial_force(self._zero)
 
-    def _calc(self, context, output):
+    def _spatial_force(self, f_W: np.ndarray) -> ExternallyAppliedSpatialForce:
+        force = ExternallyAppliedSpatialForce()
+        force.body_index = self._body_index
+        force.p_BoBq_B = np.zeros(3)
+        force.F_Bq_W = SpatialForce(self._zero, f_W)
+        return force
+
+    def _f_W(self, context) -> np.ndarray:
         x = self._state.Eval(context)
         R_WB = rotation_matrix(x[0:4])
         v_BA_B = (x[10:13] - self._wind.Eval(context)) @ R_WB  # R_WB^T (v_WB - v_WA)
-        f_W = R_WB @ drag_force_B(v_BA_B, self._linear, self._quadratic)
-        self._force.F_Bq_W = SpatialForce(self._zero, f_W)
+        return R_WB @ drag_force_B(v_BA_B, self._linear, self._quadratic)
+
+    def _calc(self, context, output):
+        self._force.F_Bq_W = SpatialForce(self._zero, self._f_W(context))
         output.set_value([self._force])
+
+    def _sample(self, context, state):
+        state.get_mutable_abstract_state(self._held).set_value(
+            [self._spatial_force(self._f_W(context))])
