@@ -242,12 +242,17 @@ def bare_plant_diagram(with_world: bool = False):
         plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
     plant.Finalize()
     if car is not None:
-        from pydrake.systems.primitives import ConstantVectorSource
+        from pydrake.systems.primitives import ConstantVectorSource, Multiplexer
+        from alight.systems.target.vehicle import target_drive
         target = load_target_params()
         desired = builder.AddSystem(ConstantVectorSource(np.array(
             [*target.initial_position, np.radians(target.initial_heading), 0.0, 0.0, 0.0])))
-        builder.Connect(desired.get_output_port(), plant.get_desired_state_input_port(
-            car.instance))
+        drive_input = builder.AddSystem(Multiplexer([6, plant.num_multibody_states()]))
+        drive = builder.AddSystem(target_drive(plant, car))
+        builder.Connect(desired.get_output_port(), drive_input.get_input_port(0))
+        builder.Connect(plant.get_state_output_port(), drive_input.get_input_port(1))
+        builder.Connect(drive_input.get_output_port(), drive.get_input_port())
+        builder.Connect(drive.get_output_port(), plant.get_actuation_input_port(car.instance))
     body = plant.GetBodyByName(config.airframe.body)
     from pydrake.math import RigidTransform
     plant.SetDefaultFloatingBaseBodyPose(body, RigidTransform([0.0, 0.0, 5.0]))

@@ -9,14 +9,15 @@ from pydrake.common import RandomDistribution, RandomGenerator
 from pydrake.geometry import Role
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import RandomSource, VectorLogSink
+from pydrake.systems.primitives import RandomSource, TrajectorySource, VectorLogSink
 
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.models import MODELS_DIR
 from alight.models.textures import generated_files
 from alight.systems.boundary import FC_COMMAND, GROUND_TRUTH
 from alight.systems.sensors.down_camera import DownCameraParams
-from alight.systems.target.motion import NOISE_SIZE, FieldTestParams, TargetMotion
+from alight.systems.target.motion import (NOISE_SIZE, FieldTestParams, TargetMotion,
+                                          path_evaluator, straight_path)
 from alight.systems.target.vehicle import load_target_params
 
 
@@ -104,6 +105,38 @@ def _motion_run(profile: str, duration: float, seed: int = 0, period: float = 0.
     simulator.AdvanceTo(duration)
     found = log.FindLog(simulator.get_context())
     return found.sample_times(), found.data().T
+
+
+@pytest.mark.parametrize("profile", ["straight", "field_test"])
+def test_drake_evaluated_path_is_the_python_profile(profile):
+    """What the plant reads at every step (the straight PiecewisePolynomial, the field test's
+    per-period polynomial evaluated by Drake) is TargetMotion's desired_state, at every 1 ms."""
+    target = load_target_params()
+    field_test = FieldTestParams(pull_times=[1.5], ramp_time=1.0)
+    builder = DiagramBuilder()
+    dut = builder.AddSystem(TargetMotion(profile, [3.0, -4.0], 30.0, target.straight,
+                                         target.figure_eight, field_test))
+    if profile == "field_test":
+        noise = builder.AddSystem(RandomSource(RandomDistribution.kGaussian, NOISE_SIZE,
+                                               field_test.period))
+        builder.Connect(noise.get_output_port(), dut.GetInputPort("noise"))
+        evaluator = builder.AddSystem(path_evaluator())
+        builder.Connect(dut.GetOutputPort("path_coefficients"), evaluator.get_input_port())
+        fast = evaluator.get_output_port()
+    else:
+        fast = builder.AddSystem(TrajectorySource(straight_path(
+            [3.0, -4.0], 30.0, target.straight))).get_output_port()
+    logs = [builder.AddSystem(VectorLogSink(6, 0.001)) for _ in range(2)]
+    builder.Connect(dut.GetOutputPort("desired_state"), logs[0].get_input_port())
+    builder.Connect(fast, logs[1].get_input_port())
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    diagram.SetRandomContext(simulator.get_mutable_context(), RandomGenerator(4))
+    simulator.AdvanceTo(3.0)
+    python, drake = (log.FindLog(simulator.get_context()).data().T for log in logs)
+    assert len(python) == 3001
+    np.testing.assert_allclose(drake, python, rtol=0, atol=1e-9)
+    assert np.ptp(python[:, 1]) > 1.0   # it moved
 
 
 def test_figure_eight_is_the_mbzirc_track_at_15_then_5_km_h():

@@ -15,7 +15,8 @@ from pydrake.geometry import (ClippingRange, ColorRenderCamera, DepthRange, Dept
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantValueSource, RandomSource
+from pydrake.systems.primitives import (ConstantValueSource, Multiplexer, RandomSource,
+                                        TrajectorySource)
 from pydrake.systems.sensors import CameraInfo, RgbdSensor
 
 from alight.diagrams.world.ground import add_ground
@@ -24,9 +25,10 @@ from alight.systems.boundary import CameraFrame
 from alight.systems.perception.pattern import Pattern, load_pattern_params
 from alight.systems.sensors.down_camera import (DownCameraParams, GeometricDownCamera,
                                                 RenderedDownCamera, render_intrinsics)
-from alight.systems.target.motion import NOISE_SIZE, TargetMotion
+from alight.systems.target.motion import (NOISE_SIZE, STATE_SIZE, TargetMotion, path_evaluator,
+                                          straight_path)
 from alight.systems.target.vehicle import (PlatformState, TargetParams, TargetVehicle,
-                                           add_target_vehicle)
+                                           add_target_vehicle, target_drive)
 
 RENDERER = "down_camera_vtk"
 
@@ -67,16 +69,33 @@ def add_target_systems(builder: DiagramBuilder, plant, scene_graph, scene: Targe
 
 
 def _add_motion(builder, plant, scene: TargetScene):
+    """The profile's desired state, evaluated in C++ at every plant step where it can be (the
+    straight path, the field test's per-period polynomial; systems/target/motion.py), drives the
+    car's joints through their PD law (`target_drive`)."""
     p = scene.target
-    motion = builder.AddNamedSystem("target_motion", TargetMotion(
-        p.profile, p.initial_position, p.initial_heading, p.straight, p.figure_eight,
-        p.field_test))
+    if p.profile == "straight":
+        desired = builder.AddNamedSystem("target_motion", TrajectorySource(straight_path(
+            p.initial_position, p.initial_heading, p.straight))).get_output_port()
+    else:
+        motion = builder.AddNamedSystem("target_motion", TargetMotion(
+            p.profile, p.initial_position, p.initial_heading, p.straight, p.figure_eight,
+            p.field_test))
+        desired = motion.GetOutputPort("desired_state")
     if p.profile == "field_test":
         noise = builder.AddNamedSystem("target_motion_noise", RandomSource(
             RandomDistribution.kGaussian, NOISE_SIZE, p.field_test.period))
         builder.Connect(noise.get_output_port(), motion.GetInputPort("noise"))
-    builder.Connect(motion.GetOutputPort("desired_state"),
-                    plant.get_desired_state_input_port(scene.vehicle.instance))
+        evaluator = builder.AddNamedSystem("target_path", path_evaluator())
+        builder.Connect(motion.GetOutputPort("path_coefficients"), evaluator.get_input_port())
+        desired = evaluator.get_output_port()
+    drive_input = builder.AddNamedSystem("target_drive_input", Multiplexer(
+        [STATE_SIZE, plant.num_multibody_states()]))
+    drive = builder.AddNamedSystem("target_drive", target_drive(plant, scene.vehicle))
+    builder.Connect(desired, drive_input.get_input_port(0))
+    builder.Connect(plant.get_state_output_port(), drive_input.get_input_port(1))
+    builder.Connect(drive_input.get_output_port(), drive.get_input_port())
+    builder.Connect(drive.get_output_port(),
+                    plant.get_actuation_input_port(scene.vehicle.instance))
     state = builder.AddNamedSystem("target_platform_state", PlatformState(
         scene.vehicle.platform.index()))
     builder.Connect(plant.get_body_poses_output_port(), state.GetInputPort("body_poses"))

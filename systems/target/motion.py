@@ -10,16 +10,29 @@ its planar joints [x, y, heading, vx, vy, heading rate]:
   experiment 12. The puller keeps to a lane, the line through the start along the initial heading:
   between pulls the heading is steered toward a point `lane_lookahead` ahead on that line
   (lookahead 0: free wander). Driven by a seeded `RandomSource`.
+
+The plant reads the desired state at every step, so it is evaluated in Drake's C++, not by a
+Python output call: the straight profile is a `PiecewisePolynomial` (`straight_path`, exact) in a
+`TrajectorySource`; the field test's update writes, every period, the polynomial in time of the
+coming period (`path_coefficients`, exact: the path is linear, quadratic during the start ramp,
+between updates), which `path_evaluator` (a `TrajectoryAffineSystem`) evaluates at every step.
+The figure eight (a tabulated track) keeps the Python output `desired_state`, which every profile
+still has.
 """
 import dataclasses as dc
 
 import numpy as np
+from pydrake.polynomial import Polynomial
 from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.systems.primitives import TrajectoryAffineSystem
+from pydrake.trajectories import PiecewisePolynomial
 from scipy.stats import norm
 
 from alight.systems.params import bounded
 
 NOISE_SIZE = 4  # field test: speed, turn rate, pull event, pull side
+STATE_SIZE = 6  # desired state [x, y, heading, vx, vy, heading rate]
+HORIZON = 1e7   # s, end of the closed-form paths (a PiecewisePolynomial holds its end value)
 
 
 @dc.dataclass
@@ -109,6 +122,8 @@ class TargetMotion(LeafSystem):
                             (only with the `field_test` profile)
     Output `desired_state`  (6) [x, y, heading, vx, vy, heading rate] [m, rad, m/s, rad/s] of the
                             platform centre in W, for the plant's desired-state input
+    Output `path_coefficients` (18) [a, b, c] (6 each), only with `field_test`: until the next
+                            update desired_state(t) = a + b t + c t^2 (for `path_evaluator`)
     """
 
     def __init__(self, profile: str, initial_position, initial_heading_deg: float,
@@ -133,9 +148,11 @@ class TargetMotion(LeafSystem):
             self._field = field_test
             self._noise = self.DeclareVectorInputPort("noise", NOISE_SIZE)
             # state: x, y, heading, speed, turn rate, pull time left, pull side, time of update
-            self._state = self.DeclareDiscreteState(np.array(
-                [*self._p0, self._psi0, field_test.mean_speed, 0.0, 0.0, 1.0, 0.0]))
+            initial = np.array([*self._p0, self._psi0, field_test.mean_speed, 0.0, 0.0, 1.0, 0.0])
+            self._state = self.DeclareDiscreteState(initial)
+            self._coefficients = self.DeclareDiscreteState(self._field_coefficients(initial))
             self.DeclarePeriodicDiscreteUpdateEvent(field_test.period, 0.0, self._field_update)
+            self.DeclareStateOutputPort("path_coefficients", self._coefficients)
         else:
             raise ValueError(f"unknown target motion profile {profile!r}")
         self.DeclareVectorOutputPort("desired_state", 6, self._calc)
@@ -160,16 +177,42 @@ class TargetMotion(LeafSystem):
 
     # --- the random field-test path -----------------------------------------------------------
     def _field_output(self, context, t):
-        x, y, psi, speed, rate, pull_left, side, t_k = context.get_discrete_state(
-            self._state).get_value()
-        f = self._field
-        v = speed * _ramp(t, f.ramp_time)
-        pulled = pull_left > 0
-        steer = side * np.radians(f.pull_turn_rate) if pulled else self._lane_rate(x, y, psi)
-        omega = rate + steer
+        x, y, psi, speed, _, _, _, t_k = context.get_discrete_state(self._state).get_value()
+        v = speed * _ramp(t, self._field.ramp_time)
+        omega = self._omega(context.get_discrete_state(self._state).get_value())
         dt = t - t_k
         return np.array([x + v * np.cos(psi) * dt, y + v * np.sin(psi) * dt, psi + omega * dt,
                          v * np.cos(psi), v * np.sin(psi), omega])
+
+    def _omega(self, state) -> float:
+        """Turn rate until the next update: the wander plus the pull or the lane keeping."""
+        x, y, psi, _, rate, pull_left, side, _ = state
+        steer = side * np.radians(self._field.pull_turn_rate) if pull_left > 0 \
+            else self._lane_rate(x, y, psi)
+        return rate + steer
+
+    def _field_coefficients(self, state) -> np.ndarray:
+        """[a, b, c] with `_field_output`(t) = a + b t + c t^2 from the update at t_k until the
+        next: the ramp's speed (t / ramp_time) makes it quadratic while t_k is in the ramp."""
+        x, y, psi, speed, _, _, _, t_k = state
+        omega = self._omega(state)
+        direction = np.array([np.cos(psi), np.sin(psi)])
+        a = np.array([x, y, psi, 0.0, 0.0, omega])
+        b = np.zeros(STATE_SIZE)
+        c = np.zeros(STATE_SIZE)
+        a[2], b[2] = psi - omega * t_k, omega
+        ramp = self._field.ramp_time
+        if ramp > 0 and t_k < ramp - 1e-9:       # v(t) = speed t / ramp
+            slope = speed / ramp * direction
+            b[0:2] = -slope * t_k                # p + slope t (t - t_k)
+            c[0:2] = slope
+            b[3:5] = slope
+        else:                                    # v(t) = speed
+            velocity = speed * direction
+            a[0:2] = a[0:2] - velocity * t_k     # p + velocity (t - t_k)
+            b[0:2] = velocity
+            a[3:5] = velocity
+        return np.concatenate([a, b, c])
 
     def _lane_rate(self, x, y, psi) -> float:
         """Turn rate steering the heading toward the lane point `lane_lookahead` ahead."""
@@ -202,8 +245,43 @@ class TargetMotion(LeafSystem):
         if pull_left <= 0 and (scheduled or random_pull):
             pull_left, side = f.pull_duration, 1.0 if n[3] >= 0 else -1.0
         # Integrate over the coming period with the current speed and rate (see _field_output).
-        discrete_state.set_value(self._state, [x, y, psi, speed, rate, pull_left, side, t])
+        state = np.array([x, y, psi, speed, rate, pull_left, side, t])
+        discrete_state.set_value(self._state, state)
+        discrete_state.set_value(self._coefficients, self._field_coefficients(state))
 
 
 def _ramp(t: float, ramp_time: float) -> float:
     return 1.0 if ramp_time <= 0 else float(np.clip(t / ramp_time, 0.0, 1.0))
+
+
+def path_evaluator() -> TrajectoryAffineSystem:
+    """Drake's C++ evaluation of `path_coefficients`: input [a, b, c] (18), output
+    a + b t + c t^2 (6), the desired state at the context's time (no state, no Python)."""
+    n = STATE_SIZE
+    t = Polynomial(np.array([0.0, 1.0]))
+    D = np.full((n, 3 * n), Polynomial(0.0), dtype=object)
+    for i in range(n):
+        D[i, i], D[i, n + i], D[i, 2 * n + i] = Polynomial(1.0), t, t * t
+    empty = lambda rows, cols: PiecewisePolynomial(np.zeros((rows, cols)))  # noqa: E731
+    return TrajectoryAffineSystem(empty(0, 0), empty(0, 3 * n), empty(0, 1), empty(n, 0),
+                                  PiecewisePolynomial([D], [0.0, HORIZON]), empty(n, 1))
+
+
+def straight_path(initial_position, initial_heading_deg: float,
+                  params: StraightParams) -> PiecewisePolynomial:
+    """The `straight` profile's desired state as an exact piecewise polynomial in time: the
+    quadratic start ramp, then constant velocity along the initial heading (until HORIZON)."""
+    psi = np.radians(initial_heading_deg)
+    u = np.array([np.cos(psi), np.sin(psi)])
+    p0 = np.asarray(initial_position, float)
+    ramp = max(params.ramp_time, 1e-9)
+    accel = params.speed / ramp
+    end_of_ramp = p0 + 0.5 * accel * ramp ** 2 * u
+
+    def segment(p, v, a):  # rows: [x, y, heading, vx, vy, heading rate], in local time
+        rows = [Polynomial(np.array([p[i], v[i], 0.5 * a[i]])) for i in range(2)]
+        rows += [Polynomial(psi)] + [Polynomial(np.array([v[i], a[i]])) for i in range(2)]
+        return np.array(rows + [Polynomial(0.0)], dtype=object).reshape(STATE_SIZE, 1)
+    return PiecewisePolynomial([segment(p0, np.zeros(2), accel * u),
+                                segment(end_of_ramp, params.speed * u, np.zeros(2))],
+                               [0.0, ramp, HORIZON])
