@@ -104,6 +104,14 @@ class EstimatorState:
     frame_counter: float = 0.0
     status: np.ndarray = dc.field(default_factory=lambda: np.zeros(PERCEPTION_STATUS.size))
 
+    def __deepcopy__(self, memo) -> "EstimatorState":
+        """A copy for the update and for Drake's clones of the abstract state (copy.deepcopy,
+        several per update): the filter and the pose history assign new arrays, never write
+        into theirs, so shallow copies of them may share the arrays (and the parameters); the
+        status, written in place, is copied."""
+        return dc.replace(self, ekf=copy.copy(self.ekf), poses=copy.copy(self.poses),
+                          status=self.status.copy())
+
 
 class TargetEstimator(LeafSystem):
     """Input  `down_image`        CameraFrame (image, or keypoints of the geometric source)
