@@ -3,13 +3,13 @@
 The tilt (z_B) error is corrected first and the heading error only with weight `yaw_weight`
 (reduced-attitude priority of Brescianini et al., used by PX4), then a proportional law on the
 vector part of the error quaternion gives the rate setpoint, clipped to the rate limits.
-In rates+thrust mode the commanded body rates pass through (clipped).
+In rates+thrust mode the commanded body rates pass through (clipped). The flight controller's
+inner loop (inner_loop.py) calls `rate_setpoint` every tick.
 """
 import dataclasses as dc
 import math
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
 
 from alight.systems.autopilot.setpoint import SETPOINT
 from alight.systems.boundary import FC_ATTITUDE, CommandMode
@@ -52,27 +52,11 @@ def _z_axis(q: np.ndarray) -> np.ndarray:
     return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
 
 
-class AttitudeController(LeafSystem):
-    """Input  `setpoint`      SETPOINT (mode, q_WD, w_D, thrust, armed) from the commander
-    Input  `fc_attitude`   FC_ATTITUDE estimate
-    Output `rate_setpoint` (3) body rates [rad/s, in B]
-    """
-
-    def __init__(self, params: AttitudeControlParams):
-        super().__init__()
-        self._params = params
-        self._max_rate = np.asarray(params.max_rate, float)
-        self._min_rate = -self._max_rate
-        self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
-        self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
-        self.DeclareVectorOutputPort("rate_setpoint", 3, self._calc)
-
-    def _calc(self, context, output):
-        setpoint = self._setpoint.Eval(context)
-        if int(SETPOINT.get(setpoint, "mode")) == CommandMode.RATES_THRUST:
-            rate = np.minimum(np.maximum(SETPOINT.get(setpoint, "w_D"), self._min_rate),
-                              self._max_rate)
-        else:
-            rate = attitude_rate_setpoint(FC_ATTITUDE.get(self._attitude.Eval(context), "q_WB"),
-                                          SETPOINT.get(setpoint, "q_WD"), self._params)
-        output.SetFromVector(rate)
+def rate_setpoint(setpoint: np.ndarray, fc_attitude: np.ndarray, params: AttitudeControlParams,
+                  max_rate: np.ndarray) -> np.ndarray:
+    """The body-rate setpoint [rad/s, in B] of a SETPOINT: the commanded rates (clipped to
+    `max_rate`) in rates+thrust mode, `attitude_rate_setpoint` toward q_WD otherwise."""
+    if int(SETPOINT.get(setpoint, "mode")) == CommandMode.RATES_THRUST:
+        return np.minimum(np.maximum(SETPOINT.get(setpoint, "w_D"), -max_rate), max_rate)
+    return attitude_rate_setpoint(FC_ATTITUDE.get(fc_attitude, "q_WB"),
+                                  SETPOINT.get(setpoint, "q_WD"), params)

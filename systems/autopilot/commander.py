@@ -91,7 +91,8 @@ class Commander(LeafSystem):
     Output `setpoint`          SETPOINT for the attitude/rate/mixer stages
     Output `armed`             (1)
     Output `fc_status`         FC_STATUS
-    All outputs come from state updated every `period` (a sampled-data flight controller).
+    All outputs come from state updated every `period` (a sampled-data flight controller): each
+    is its own discrete state group, read by a state output port (no Python call when read).
     """
 
     def __init__(self, params: CommanderParams, thrust_curve: ThrustCurve, period: float):
@@ -115,13 +116,11 @@ class Commander(LeafSystem):
             armed=0.0)
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        for name, size in (("setpoint", SETPOINT.size), ("armed", 1),
-                           ("fc_status", FC_STATUS.size)):
-            field = "status" if name == "fc_status" else name
-            self.DeclareVectorOutputPort(
-                name, size, lambda c, o, f=field: o.SetFromVector(
-                    np.atleast_1d(self._layout.get(self._get(c), f))),
-                prerequisites_of_calc={self.xd_ticket()})
+        self._outputs = {}
+        for name, field in (("setpoint", "setpoint"), ("armed", "armed"),
+                            ("fc_status", "status")):
+            self._outputs[field] = self.DeclareDiscreteState(initial[self._layout.slice(field)])
+            self.DeclareStateOutputPort(name, self._outputs[field])
 
     def _get(self, context):
         return context.get_discrete_state(self._xd).get_value()
@@ -206,6 +205,8 @@ class Commander(LeafSystem):
             refused=x[L.slice("refused")], last_refusal=x[L.slice("last_refusal")],
             landed=float(landed))
         discrete_state.set_value(self._xd, x)
+        for field, group in self._outputs.items():
+            discrete_state.set_value(group, x[L.slice(field)])
 
     def _failsafe_thrust(self, vz: float) -> float:
         """Hover thrust corrected by a vertical-speed loop toward -failsafe_descent_speed."""

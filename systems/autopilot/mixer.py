@@ -6,7 +6,6 @@ up in a fixed order: first yaw, then collective thrust, and roll/pitch are scale
 their direction). Rotor thrusts are then turned into ESC commands by the inverse rotor curve.
 """
 import numpy as np
-from pydrake.systems.framework import LeafSystem
 
 from alight.systems.autopilot.setpoint import SETPOINT
 from alight.systems.plant.hexacopter import Airframe
@@ -55,28 +54,21 @@ def mix(force: float, torque: np.ndarray, pinv: np.ndarray, f_min: float,
     return MixerSolution(thrust, rp_scale, yaw_scale, shift * len(thrust))
 
 
-class Mixer(LeafSystem):
-    """Input  `torque`        (3) torque demand [N m, in B]
-    Input  `setpoint`      SETPOINT (collective thrust in [0, 1], armed)
-    Output `motor_command` (n) ESC commands in [0, 1] (zero while disarmed)
-    """
+class Mixer:
+    """Collective thrust (SETPOINT, in [0, 1]) and torque demand [N m, in B] -> ESC commands in
+    [0, 1] (zero while disarmed), for the inner loop (inner_loop.py)."""
 
     def __init__(self, airframe: Airframe):
-        super().__init__()
         self._pinv = np.linalg.pinv(allocation_matrix(airframe))
         self._collective = airframe.thrust_curve
         self._rotor = airframe.rotor_curve
         self._f_min = airframe.min_thrust
         self._f_max = airframe.max_thrust
-        self._torque = self.DeclareVectorInputPort("torque", 3)
-        self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
-        self.DeclareVectorOutputPort("motor_command", airframe.num_rotors, self._calc)
+        self._stopped = np.zeros(airframe.num_rotors)
 
-    def _calc(self, context, output):
-        setpoint = self._setpoint.Eval(context)
+    def motor_commands(self, setpoint: np.ndarray, torque: np.ndarray) -> np.ndarray:
         if SETPOINT.get(setpoint, "armed") < 0.5:
-            output.SetFromVector(np.zeros(output.size()))
-            return
+            return self._stopped
         force = self._collective.force(SETPOINT.get(setpoint, "thrust"))
-        solution = mix(force, self._torque.Eval(context), self._pinv, self._f_min, self._f_max)
-        output.SetFromVector(self._rotor.thrust(solution.rotor_thrust))
+        solution = mix(force, torque, self._pinv, self._f_min, self._f_max)
+        return self._rotor.thrust(solution.rotor_thrust)

@@ -6,10 +6,7 @@ The integrator is clamped and reset while disarmed or landed, like PX4's.
 import dataclasses as dc
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
 
-from alight.systems.autopilot.setpoint import SETPOINT
-from alight.systems.boundary import FC_ATTITUDE
 from alight.systems.params import bounded
 from alight.systems.rotations import cross
 
@@ -22,47 +19,31 @@ class RateControlParams:
     integrator_limit: list[float] = bounded([3.0, 3.0, 2.0], 0.0, 50.0, "rad/s^2")
 
 
-class RateController(LeafSystem):
-    """Input  `rate_setpoint` (3) [rad/s, in B]
-    Input  `fc_attitude`   FC_ATTITUDE (its body rates are the measurement)
-    Input  `setpoint`      SETPOINT (armed flag resets the integrator)
-    Output `torque`        (3) torque demand [N m, in B]
-    State: integral of the rate error (3), previous measured rate (3); updated every `period`.
-    """
+class RatePid:
+    """The rate PID's law and memory (the integral of the rate error (3) and the previous
+    measured rate (3), updated every `period`), for the inner loop (inner_loop.py)."""
 
     def __init__(self, params: RateControlParams, inertia: np.ndarray, period: float):
-        super().__init__()
-        self._p = params
         self._J = np.asarray(inertia)
         self._period = period
         self._kp, self._kd = np.asarray(params.kp, float), np.asarray(params.kd, float)
         self._ki_dt = np.asarray(params.ki, float) * period
         self._limit = np.asarray(params.integrator_limit, float)
-        self._rate_setpoint = self.DeclareVectorInputPort("rate_setpoint", 3)
-        self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
-        self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
-        self._xd = self.DeclareDiscreteState(6)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self.DeclareVectorOutputPort("torque", 3, self._calc)
 
-    def _update(self, context, discrete_state):
-        w = self._attitude.Eval(context)[_W_B]
-        x = discrete_state.get_mutable_value(self._xd)
-        if self._setpoint.Eval(context)[_ARMED] > 0.5:
-            error = self._rate_setpoint.Eval(context) - w
-            x[:3] = np.minimum(np.maximum(x[:3] + self._ki_dt * error, -self._limit),
-                               self._limit)
+    def torque(self, rate_setpoint: np.ndarray, w: np.ndarray, memory: np.ndarray) -> np.ndarray:
+        """Torque demand [N m, in B] for the setpoint and the measured rate w [rad/s, in B]."""
+        alpha = self._kp * (rate_setpoint - w) + memory[:3] - self._kd * (w - memory[3:]) \
+            / self._period
+        return self._J * alpha + cross(w, self._J * w)
+
+    def updated(self, rate_setpoint: np.ndarray, w: np.ndarray, armed: bool,
+                memory: np.ndarray) -> np.ndarray:
+        """The memory after one period: the clamped integral (reset while disarmed) and w."""
+        new = np.empty(6)
+        if armed:
+            new[:3] = np.minimum(np.maximum(memory[:3] + self._ki_dt * (rate_setpoint - w),
+                                            -self._limit), self._limit)
         else:
-            x[:3] = 0.0
-        x[3:] = w
-
-    def _calc(self, context, output):
-        w = self._attitude.Eval(context)[_W_B]
-        x = context.get_discrete_state(self._xd).get_value()
-        alpha = self._kp * (self._rate_setpoint.Eval(context) - w) + x[:3] \
-            - self._kd * (w - x[3:]) / self._period
-        output.SetFromVector(self._J * alpha + cross(w, self._J * w))
-
-
-_W_B = FC_ATTITUDE.slice("w_B")
-_ARMED = SETPOINT.slice("armed").start
+            new[:3] = 0.0
+        new[3:] = w
+        return new

@@ -41,29 +41,27 @@ class FcEstimate(LeafSystem):
         self._vz_std = params.vertical_velocity_noise_std
         self._state = self.DeclareVectorInputPort("body_state", 13)
         self._noise = self.DeclareVectorInputPort("noise", 7)
-        # [rotation-vector attitude error (3), fc_attitude (8), vertical velocity (1)]
-        initial = np.zeros(12)
-        initial[3 + FC_ATTITUDE.slice("q_WB").start] = 1.0
-        self._xd = self.DeclareDiscreteState(initial)
+        # State: the rotation-vector attitude error (3) and the two outputs, each its own group
+        # so that the outputs are state output ports (no Python call when read).
+        self._error = self.DeclareDiscreteState(3)
+        initial = np.zeros(FC_ATTITUDE.size)
+        initial[FC_ATTITUDE.slice("q_WB").start] = 1.0
+        self._fc_attitude = self.DeclareDiscreteState(initial)
+        self._vz = self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
-        self.DeclareVectorOutputPort("fc_attitude", FC_ATTITUDE.size,
-                                     lambda c, o: o.SetFromVector(self._get(c)[3:11]),
-                                     prerequisites_of_calc={self.xd_ticket()})
-        self.DeclareVectorOutputPort("vertical_velocity", 1,
-                                     lambda c, o: o.SetFromVector(self._get(c)[11:12]),
-                                     prerequisites_of_calc={self.xd_ticket()})
-
-    def _get(self, context):
-        return context.get_discrete_state(self._xd).get_value()
+        self.DeclareStateOutputPort("fc_attitude", self._fc_attitude)
+        self.DeclareStateOutputPort("vertical_velocity", self._vz)
 
     def _update(self, context, discrete_state):
         x = self._state.Eval(context)
         noise = self._noise.Eval(context)
-        error = self._decay * self._get(context)[:3] + self._attitude_drive * noise[:3]
+        error = self._decay * context.get_discrete_state(self._error).get_value() \
+            + self._attitude_drive * noise[:3]
         q_WB = x[:4] / np.linalg.norm(x[:4])
         q_est = quaternion_product(q_WB, quaternion_from_rotation_vector(error))
         w_B = rotation_matrix(q_WB).T @ x[7:10] + self._rate_std * noise[3:6]
-        fc_attitude = FC_ATTITUDE.pack(stamp=context.get_time(), q_WB=q_est, w_B=w_B)
-        vz = x[12] + self._vz_std * noise[6]
-        discrete_state.set_value(self._xd, np.concatenate([error, fc_attitude, [vz]]))
+        discrete_state.set_value(self._error, error)
+        discrete_state.set_value(self._fc_attitude, FC_ATTITUDE.pack(
+            stamp=context.get_time(), q_WB=q_est, w_B=w_B))
+        discrete_state.set_value(self._vz, [x[12] + self._vz_std * noise[6]])
