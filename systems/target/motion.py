@@ -146,6 +146,8 @@ class TargetMotion(LeafSystem):
             self._track = Lemniscate(p.half_width)
         elif profile == "field_test":
             self._field = field_test
+            # A random pull starts when the unit noise exceeds this (probability rate * period).
+            self._pull_threshold = float(norm.isf(field_test.pull_rate / 60 * field_test.period))
             self._noise = self.DeclareVectorInputPort("noise", NOISE_SIZE)
             # state: x, y, heading, speed, turn rate, pull time left, pull side, time of update
             initial = np.array([*self._p0, self._psi0, field_test.mean_speed, 0.0, 0.0, 1.0, 0.0])
@@ -241,7 +243,7 @@ class TargetMotion(LeafSystem):
             + np.radians(f.turn_rate_std) * np.sqrt(2 * dt / f.turn_time) * n[1]
         pull_left -= dt
         scheduled = any(t <= tp < t + dt for tp in f.pull_times)
-        random_pull = f.pull_rate > 0 and n[2] > norm.isf(f.pull_rate / 60 * dt)
+        random_pull = f.pull_rate > 0 and n[2] > self._pull_threshold
         if pull_left <= 0 and (scheduled or random_pull):
             pull_left, side = f.pull_duration, 1.0 if n[3] >= 0 else -1.0
         # Integrate over the coming period with the current speed and rate (see _field_output).
