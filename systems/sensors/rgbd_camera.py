@@ -105,6 +105,9 @@ class GeometricRgbdCamera(TimedCamera):
         self._X_BC = params.X_BC()
         self._body = int(body_index)
         self.landmarks = make_landmark_map(params.landmarks)
+        # Homogeneous landmark coordinates (4, N), for one product per frame.
+        self._p_WL_h = np.vstack([self.landmarks.p_WL.T, np.ones(len(self.landmarks.p_WL))])
+        self._focal, self._center = self._lens.K[[0, 1], [0, 1]], self._lens.K[:2, 2]
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(
             [RigidTransform()]))
         self._seed = self.DeclareVectorInputPort("noise_seed", 1)
@@ -124,7 +127,9 @@ class GeometricRgbdCamera(TimedCamera):
             return None, {}, next_id
         X_WC = self._poses.Eval(context)[self._body] @ self._X_BC
         visible, uv, z = self.visible(X_WC)
-        kept = [i for i in visible if i in tracks and rng.random() >= p.track_loss]
+        tracked = [i for i in visible if i in tracks]
+        # One draw per tracked landmark, in order (as many draws as one call each).
+        kept = [i for i, u in zip(tracked, rng.random(len(tracked))) if u >= p.track_loss]
         fresh = self._spread([i for i in visible if i not in tracks], kept, uv, rng)
         selected = np.array((kept + fresh)[:p.max_features], dtype=int)
         new_tracks = {i: tracks[i] for i in kept}
@@ -147,33 +152,38 @@ class GeometricRgbdCamera(TimedCamera):
                              .astype(int) * GRID[1] + np.clip(uv[ids, 1] * GRID[1]
                                                               / self._lens.height, 0,
                                                               GRID[1] - 1).astype(int))
-        fresh = [fresh[i] for i in rng.permutation(len(fresh))]
-        if not fresh:
+        fresh = np.asarray(fresh, dtype=int)[rng.permutation(len(fresh))]
+        if not len(fresh):
             return []
         count = np.bincount(cells(kept), minlength=GRID[0] * GRID[1]) if kept else \
             np.zeros(GRID[0] * GRID[1], int)
-        rank = np.empty(len(fresh))
-        for j, cell in enumerate(cells(fresh)):
-            rank[j] = count[cell]
-            count[cell] += 1
-        return [fresh[j] for j in np.argsort(rank, kind="stable")]
+        # Each new feature's rank: the features already in its cell (kept, then the new ones
+        # before it in the shuffled order).
+        cell = cells(fresh)
+        order = np.argsort(cell, kind="stable")
+        first = np.searchsorted(cell[order], cell[order])
+        before = np.empty(len(fresh), int)
+        before[order] = np.arange(len(fresh)) - first
+        rank = count[cell] + before
+        return fresh[np.argsort(rank, kind="stable")].tolist()
 
-    def _points_C(self, X_WC: RigidTransform, indices) -> np.ndarray:
-        return (X_WC.inverse().GetAsMatrix34()
-                @ np.vstack([self.landmarks.p_WL[indices].T, np.ones(len(indices))])).T
+    def _points_C(self, X_WC: RigidTransform, indices=None) -> np.ndarray:
+        """Landmarks (all, or those of `indices`) in the camera frame C."""
+        p_WL_h = self._p_WL_h if indices is None else self._p_WL_h[:, indices]
+        return (X_WC.inverse().GetAsMatrix34() @ p_WL_h).T
 
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
         """Indices of the landmarks a detector would find (in front, within range, inside the
-        image minus the border), the noise-free pixels and ranges (z in C) of all landmarks."""
+        image minus the border), the noise-free pixels (meaningless behind the camera) and ranges
+        (z in C) of all landmarks."""
         p = self._params
-        p_CL = self._points_C(X_WC, np.arange(len(self.landmarks.p_WL)))
+        p_CL = self._points_C(X_WC)
         z = p_CL[:, 2]
         ahead = (z > 0.1) & (z < p.max_range)
-        uv = np.full((len(z), 2), -1e9)
-        uv[ahead] = p_CL[ahead, :2] / z[ahead, None] * self._lens.K[[0, 1], [0, 1]] \
-            + self._lens.K[:2, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = p_CL[:, :2] / z[:, None] * self._focal + self._center
         visible = ahead & self._lens.in_image(uv, p.border_margin)
-        return [int(i) for i in np.flatnonzero(visible)], uv, z
+        return np.flatnonzero(visible).tolist(), uv, z
 
 
 class RenderedRgbdCamera(TimedCamera):
