@@ -13,7 +13,7 @@ from pathlib import Path
 from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import write_run_folder
+from alight.diagrams.running.run_log import open_run_folder, write_run_folder
 from alight.diagrams.scenario import Scenario, write_scenario
 from alight.diagrams.stacks import NEEDS_ODOMETRY, OnboardStack, add_onboard
 from alight.hw.channel_odometry import channel_odometry
@@ -95,6 +95,14 @@ def run_hil(connect: str, scenario: Scenario, params: MavlinkVehicleParams,
         # simulated autopilot's world, e.g. the landing target, runs from its own start).
         diagram, onboard = make_hil_diagram(link, params, scenario, frames, cameras)
         sender = command_sender(diagram.GetSubsystemByName("vehicle"))
+        run_dir = Path(run_dir) if run_dir is not None else default_run_dir(f"hil-{stack}",
+                                                                             seed)
+        metadata = {"command": "hil", "scenario_name": scenario.name, "connect": connect,
+                    "seed": seed, "vehicle": params, **onboard.metadata,
+                    "realtime_rate": realtime_rate,
+                    "follow_autopilot_clock": follow_autopilot_clock}
+        open_run_folder(run_dir, onboard.loggers, diagram, metadata)  # written as it flies
+        write_scenario(run_dir, scenario)
         LOG.info("hil: %s stack built; waiting for the autopilot on %s", stack, connect)
         link.wait_for_autopilot(wait)
         rates = link.request_message_rates()
@@ -108,19 +116,14 @@ def run_hil(connect: str, scenario: Scenario, params: MavlinkVehicleParams,
             diagram, duration or onboard.duration, clock, seed=seed, safe_stop=safe_stop,
             pace=link.autopilot_time if follow_autopilot_clock else None,
             stop_when=onboard.finished)
-        run_dir = Path(run_dir) if run_dir is not None else default_run_dir(f"hil-{stack}",
-                                                                             seed)
         write_run_folder(run_dir, onboard.loggers, simulator, {
-            "command": "hil", "scenario_name": scenario.name, "connect": connect, "seed": seed,
-            "duration": simulator.get_context().get_time(), "vehicle": params,
-            **onboard.metadata, "message_rates": rates, "realtime_rate": realtime_rate,
-            "follow_autopilot_clock": follow_autopilot_clock,
-            "realtime": dc.asdict(report), "link": dc.asdict(link.counters_snapshot()),
+            **metadata, "duration": simulator.get_context().get_time(),
+            "message_rates": rates, "realtime": dc.asdict(report),
+            "link": dc.asdict(link.counters_snapshot()),
             "frames": dc.asdict(frames.counters) if frames is not None else None,
             "autopilot_clock_offset": -link.to_local(0.0),
             "mission_finished": onboard.finished is not None
             and onboard.finished.at is not None, "arming_errors": sender.last_error})
-        write_scenario(run_dir, scenario)
         return HilResult(report, run_dir, rates)
     finally:
         link.close()

@@ -31,7 +31,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from alight.diagrams.onboard.mocap import add_mocap
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import add_run_logging, write_run_folder
+from alight.diagrams.running.run_log import add_run_logging, open_run_folder, write_run_folder
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.world.visualization import start_recording, write_recording
 from alight.hw.autopilot_rules import ACCEPTED, UNSUPPORTED, Answer, AutopilotRules
@@ -449,6 +449,11 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
         # The world's mocap: MocapParams' defaults, as a scenario's `onboard.mocap`.
         diagram, loggers = make_sim_autopilot(vehicle_config, endpoint, params, MocapParams(),
                                               frames, meshcat)
+        run_dir = Path(run_dir) if run_dir is not None else default_run_dir("sim-autopilot",
+                                                                             seed)
+        metadata = {"command": "sim-autopilot", "seed": seed, "listen": listen,
+                    "config": vehicle_config, "autopilot": params, "realtime_rate": realtime_rate}
+        open_run_folder(run_dir, loggers, diagram, metadata)  # written as it flies
         if meshcat is not None and record is not None:
             start_recording(meshcat)
         if ready is not None:
@@ -462,11 +467,9 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
         endpoint.close()
         if frames is not None:
             frames.close()
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir("sim-autopilot", seed)
     write_run_folder(run_dir, loggers, simulator, {
-        "command": "sim-autopilot", "seed": seed, "listen": listen,
-        "duration": simulator.get_context().get_time(), "config": vehicle_config,
-        "autopilot": params, "realtime_rate": realtime_rate, "realtime": dc.asdict(report)})
+        **metadata, "duration": simulator.get_context().get_time(),
+        "realtime": dc.asdict(report)})
     statistics = {"realtime": dc.asdict(report), "link": dc.asdict(endpoint.counters_snapshot()),
                   **endpoint.statistics.summary()}
     if stats_file is not None:

@@ -22,7 +22,8 @@ class ComputeTimer:
     belongs to and the part measured ("tick"; the VIO's "frontend" and "backend").
 
     Like a system's solver workspace it serves one simulation at a time: the records of every
-    simulation the system ran accumulate (in compact growing arrays) until `clear()`.
+    simulation the system ran accumulate (in compact growing arrays) until `clear()`, which the
+    run folder writer calls at every flush once it has written them (diagrams/running/run_log.py).
     """
 
     def __init__(self):

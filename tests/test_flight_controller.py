@@ -8,7 +8,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from alight.diagrams.onboard.pilot import pilot_model
 from alight.diagrams.running.flights import fly_profile
-from alight.diagrams.running.run_log import add_run_logging
+from alight.diagrams.running.run_log import add_run_logging, read_run, write_run_folder
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.running.simulation import simulate
 from alight.systems.autopilot.commander import Commander, CommanderParams
@@ -221,10 +221,10 @@ def test_nan_commands_in_flight_are_refused_and_the_vehicle_keeps_flying(vehicle
     loggers = add_run_logging(builder, vehicle, injector.get_output_port())
     diagram = builder.Build()
     simulator = simulate(diagram, flight.duration, seed=3)
-    truth_log = loggers.vector_sinks["ground_truth"][0].FindLog(simulator.get_context())
-    status = loggers.vector_sinks["fc_status"][0].FindLog(simulator.get_context()).data()
-    truth = truth_log.data()
-    t = truth_log.sample_times()
+    run = read_run(write_run_folder(tmp_path / "run", loggers, simulator, {}))
+    truth = run["ground_truth"].drop(columns="time").to_numpy().T
+    status = run["fc_status"].drop(columns="time").to_numpy().T
+    t = run["ground_truth"]["time"].to_numpy()
     assert np.all(np.isfinite(truth[GROUND_TRUTH.slice("motor_command")]))
     assert status[FC_STATUS.slice("refused")][0, -1] >= 19  # one per 20 ms message for 0.4 s
     assert status[FC_STATUS.slice("last_refusal")][0, -1] == Refusal.NOT_FINITE

@@ -22,7 +22,8 @@ from alight.diagrams.onboard.uav import FlightPlan, load_uav_manager_params
 from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params, load_vio_params
 from alight.diagrams.running.mission import Mission
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.running.run_log import (RunLog, add_run_logging, open_run_folder,
+                                             write_run_folder)
 from alight.diagrams.running.runner import run
 from alight.diagrams.running.simulation import simulate
 from alight.diagrams.scenario import (Onboard, Scenario, Scoring, SimulatorSettings,
@@ -94,10 +95,12 @@ def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: 
     loggers = add_mpc_logging(builder, loop, reference.GetOutputPort("reference"))
     if log is not None:
         log(builder, loggers)
-    simulator = simulate(builder.Build(), duration, seed)
-    write_run_folder(run_dir, loggers, simulator, {
-        "command": "fly_reference", "seed": seed, "duration": duration, "config": config,
-        "mpc": mpc_params})
+    diagram = builder.Build()
+    metadata = {"command": "fly_reference", "seed": seed, "duration": duration,
+                "config": config, "mpc": mpc_params}
+    open_run_folder(run_dir, loggers, diagram, metadata)
+    simulator = simulate(diagram, duration, seed)
+    write_run_folder(run_dir, loggers, simulator, metadata)
     return RunLog(run_dir)
 
 
@@ -195,13 +198,14 @@ def fly_managed(vehicle_config: SimVehicleConfig, trajectory: ref.Trajectory, se
                                   goal.GetOutputPort("reference"), config.period)
     diagram = builder.Build()
     duration = trajectory.duration if duration is None else duration
-    simulator = simulate(diagram, duration, seed, meshcat, realtime_rate=realtime_rate)
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("managed", seed)
-    write_run_folder(run_dir, loggers, simulator, {
-        "command": "managed", "seed": seed, "duration": duration, "marks": trajectory.marks,
-        "controllers": config.names, "schedule": schedule or [], "faults": faults,
-        "control_manager": config, "vehicle_config": vehicle_config,
-        "controllers_config": controllers_config})
+    metadata = {"command": "managed", "seed": seed, "duration": duration,
+                "marks": trajectory.marks, "controllers": config.names,
+                "schedule": schedule or [], "faults": faults, "control_manager": config,
+                "vehicle_config": vehicle_config, "controllers_config": controllers_config}
+    open_run_folder(run_dir, loggers, diagram, metadata)
+    simulator = simulate(diagram, duration, seed, meshcat, realtime_rate=realtime_rate)
+    write_run_folder(run_dir, loggers, simulator, metadata)
     return RunLog(run_dir)
 
 
@@ -227,10 +231,13 @@ def fly_landoff(vehicle_config: SimVehicleConfig, schedule: list[tuple[float, ob
     loggers.add(builder, "landed", tracker.GetOutputPort("landed"), LANDED, period)
     loggers.add(builder, "controller_status", feedback.GetOutputPort("controller_status"),
                 CONTROLLER_STATUS, period)
-    simulator = simulate(builder.Build(), duration, seed, meshcat)
+    diagram = builder.Build()
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("landoff", seed)
-    write_run_folder(run_dir, loggers, simulator, {
-        "command": "landoff", "seed": seed, "duration": duration, "controller": controller,
-        "schedule": [[t, repr(goal)] for t, goal in schedule], "tracker": tracker_params,
-        "vehicle_config": vehicle_config, "controllers_config": controllers_config})
+    metadata = {"command": "landoff", "seed": seed, "duration": duration,
+                "controller": controller, "schedule": [[t, repr(goal)] for t, goal in schedule],
+                "tracker": tracker_params, "vehicle_config": vehicle_config,
+                "controllers_config": controllers_config}
+    open_run_folder(run_dir, loggers, diagram, metadata)
+    simulator = simulate(diagram, duration, seed, meshcat)
+    write_run_folder(run_dir, loggers, simulator, metadata)
     return RunLog(run_dir)

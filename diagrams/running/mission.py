@@ -34,7 +34,7 @@ from alight.diagrams.onboard.control_manager import load_control_manager_config
 from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.diagrams.onboard.uav import ManagedOnboard, add_managed_onboard, load_uav_manager_params
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import RunLog, write_run_folder
+from alight.diagrams.running.run_log import RunLog, open_run_folder, write_run_folder
 from alight.diagrams.running.simulation import evaluate, finish_recording, start_simulation
 from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.hw.channel_odometry import channel_odometry
@@ -92,6 +92,8 @@ class Mission:
         # `close` does first (the final safe command and closing the link; writing a replay).
         self.advance_to = simulator.AdvanceTo
         self.closers: list = []
+        open_run_folder(self.run_dir, onboard.loggers, diagram, {"command": "mission",
+                                                                  **self.metadata})
 
     @classmethod
     def simulated(cls, vehicle_config: SimVehicleConfig | None = None, seed: int = 0,

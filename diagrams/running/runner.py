@@ -11,7 +11,7 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import RunLog, write_run_folder
+from alight.diagrams.running.run_log import RunLog, open_run_folder, write_run_folder
 from alight.diagrams.running.simulation import simulate
 from alight.diagrams.scenario import Scenario, vehicle_config, write_scenario
 from alight.diagrams.stacks import OnboardStack, add_onboard
@@ -38,15 +38,17 @@ def run(scenario: Scenario, run_dir=None, meshcat=None, record=None,
     diagram = builder.Build()
     if duration is None:
         duration = min(stack.duration or np.inf, scenario.simulator.max_duration)
+    run_dir = Path(run_dir) if run_dir is not None else default_run_dir(command,
+                                                                        scenario.random_seed)
+    metadata = {"command": command, "scenario_name": scenario.name,
+                "seed": scenario.random_seed, "controller": scenario.onboard.controller,
+                "estimator": scenario.onboard.estimator, **stack.metadata}
+    open_run_folder(run_dir, stack.loggers, diagram, metadata)  # streams written as it flies
+    write_scenario(run_dir, scenario)
     simulator = simulate(diagram, duration, scenario.random_seed, meshcat, record,
                          realtime_rate, stop_when=stack.finished, prepare=prepare)
     context = simulator.get_context()
-    run_dir = Path(run_dir) if run_dir is not None else default_run_dir(command,
-                                                                        scenario.random_seed)
     finished = stack.finished is not None and stack.finished.holds(context)
     write_run_folder(run_dir, stack.loggers, simulator, {
-        "command": command, "scenario_name": scenario.name, "seed": scenario.random_seed,
-        "duration": context.get_time(), "controller": scenario.onboard.controller,
-        "estimator": scenario.onboard.estimator, "landed": finished, **stack.metadata})
-    write_scenario(run_dir, scenario)
+        **metadata, "duration": context.get_time(), "landed": finished})
     return RunLog(run_dir)

@@ -12,7 +12,8 @@ from alight.diagrams.analysis.sysid import SysidReport, axis_data, identify, plo
 from alight.diagrams.onboard.mocap import add_mocap
 from alight.diagrams.onboard.pilot import pilot_model
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import RunLog, add_run_logging, write_run_folder
+from alight.diagrams.running.run_log import (RunLog, add_run_logging, open_run_folder,
+                                             write_run_folder)
 from alight.diagrams.running.simulation import simulate
 from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.systems.boundary import STATE_ESTIMATE
@@ -34,10 +35,12 @@ def fly_excitation(config: SimVehicleConfig, params: ExcitationParams, seed: int
     builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     loggers = add_run_logging(builder, vehicle, pilot.GetOutputPort("fc_command"))
     loggers.add(builder, "state_estimate", estimate, STATE_ESTIMATE)
-    simulator = simulate(builder.Build(), params.duration, seed)
-    write_run_folder(run_dir, loggers, simulator, {
-        "command": "sysid", "seed": seed, "duration": params.duration, "config": config,
-        "excitation": params})
+    diagram = builder.Build()
+    metadata = {"command": "sysid", "seed": seed, "duration": params.duration, "config": config,
+                "excitation": params}
+    open_run_folder(run_dir, loggers, diagram, metadata)
+    simulator = simulate(diagram, params.duration, seed)
+    write_run_folder(run_dir, loggers, simulator, metadata)
     return RunLog(run_dir)
 
 

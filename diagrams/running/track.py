@@ -24,7 +24,7 @@ from alight.diagrams.onboard.controllers import (CONTROLLERS, ControllersConfig,
                                                  load_controllers_config)
 from alight.diagrams.onboard.track import add_controller_loop, add_loop_logging
 from alight.diagrams.running.paths import default_run_dir
-from alight.diagrams.running.run_log import RunLog, write_run_folder
+from alight.diagrams.running.run_log import RunLog, open_run_folder, write_run_folder
 from alight.diagrams.running.simulation import simulate
 from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
 from alight.systems.boundary import GROUND_TRUTH
@@ -142,13 +142,14 @@ def fly_track(vehicle_config: SimVehicleConfig, experiment: TrackExperiment, see
         duration = trajectory.duration + (30.0 if experiment.failsafe_at > 0 else 0.0)
     prepare = None if vehicle_mass is None else \
         lambda context: set_vehicle_mass(diagram, vehicle_config, context, vehicle_mass)
-    simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate, prepare=prepare)
     run_dir = Path(run_dir) if run_dir is not None else default_run_dir("track", seed)
-    write_run_folder(run_dir, loggers, simulator, {
-        "command": "track", "seed": seed, "duration": duration, "experiment": experiment,
-        "marks": trajectory.marks, "controllers": names, "controller_starts": starts,
-        "vehicle_config": vehicle_config, "controllers_config": controllers_config,
-        "vehicle_mass": vehicle_mass})
+    metadata = {"command": "track", "seed": seed, "duration": duration, "experiment": experiment,
+                "marks": trajectory.marks, "controllers": names, "controller_starts": starts,
+                "vehicle_config": vehicle_config, "controllers_config": controllers_config,
+                "vehicle_mass": vehicle_mass}
+    open_run_folder(run_dir, loggers, diagram, metadata)
+    simulator = simulate(diagram, duration, seed, meshcat, record, realtime_rate, prepare=prepare)
+    write_run_folder(run_dir, loggers, simulator, metadata)
     run = RunLog(run_dir)
     if plots:
         from alight.diagrams.analysis.track_plots import plot_track
