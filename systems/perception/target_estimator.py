@@ -128,7 +128,7 @@ class TargetEstimator(LeafSystem):
         self._pattern = pattern
         self._rectifier = Rectifier(params.detector)
         self._detector = PatternDetector(pattern, params.detector)
-        self._tracker = KeypointTracker(pattern, params.tracker)
+        self._tracker = None  # built at the first image (drawing its templates takes ~2 s)
         self._frame = self.DeclareAbstractInputPort("down_image", AbstractValue.Make(CameraFrame()))
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._state = self.DeclareAbstractState(AbstractValue.Make(EstimatorState(
@@ -148,6 +148,8 @@ class TargetEstimator(LeafSystem):
             self._record_pose(st, estimate)
         frame = self._frame.Eval(context)
         if frame.valid and frame.calibration is not None and not frame.stamp <= st.last_frame:
+            if frame.image is not None:
+                self._keypoint_tracker()  # built before the first image's timing
             with self.compute_timer.measure(context.get_time()):
                 self.process(st, frame)
         state.get_mutable_abstract_state(self._state).set_value(st)
@@ -212,6 +214,13 @@ class TargetEstimator(LeafSystem):
         status[PERCEPTION_STATUS.slice("detected")] = detected
 
     # --- steps ----------------------------------------------------------------------------------
+    def _keypoint_tracker(self) -> KeypointTracker:
+        """The keypoint tracker, built when first needed: only image frames use it (the geometric
+        source's keypoints come identified), and drawing its templates takes about 2 s."""
+        if self._tracker is None:
+            self._tracker = KeypointTracker(self._pattern, self._params.tracker)
+        return self._tracker
+
     def _images(self, frame, lens):
         if frame.image is None:
             return None
@@ -222,8 +231,8 @@ class TargetEstimator(LeafSystem):
     def _track(self, frame, images, lens, X_CT_predicted) -> list[tuple[int, np.ndarray]]:
         if images is not None:
             _, binary, valid = images
-            return [(m.id, m.uv) for m in self._tracker.match(binary, valid, lens.K_rectified,
-                                                              X_CT_predicted)]
+            return [(m.id, m.uv) for m in self._keypoint_tracker().match(
+                binary, valid, lens.K_rectified, X_CT_predicted)]
         uv = lens.rectify_points(frame.keypoints)
         return list(zip((int(i) for i in frame.keypoint_ids), uv))
 
