@@ -27,7 +27,8 @@ class WindParams:
 class Wind(LeafSystem):
     """Input  `noise` (3) unit white Gaussian noise, resampled every `period`
     Output `wind`  (3) air velocity v_WA [m/s, in W] = mean + gusts
-    State: the gust velocity (3), an exact discretization of d(g) = -g/tau dt + sigma sqrt(2/tau) dW.
+    State: the gust velocity (3), an exact discretization of d(g) = -g/tau dt + sigma sqrt(2/tau) dW,
+    and the output (3) kept with it (a state output port: no Python call when read).
     """
 
     def __init__(self, params: WindParams):
@@ -38,14 +39,12 @@ class Wind(LeafSystem):
             * np.sqrt(1.0 - self._decay**2)
         self._noise = self.DeclareVectorInputPort("noise", 3)
         self._gust = self.DeclareDiscreteState(3)
+        self._wind = self.DeclareDiscreteState(self._mean + np.zeros(3))
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
-        self.DeclareVectorOutputPort("wind", 3, self._calc,
-                                     prerequisites_of_calc={self.xd_ticket()})
+        self.DeclareStateOutputPort("wind", self._wind)
 
     def _update(self, context, discrete_state):
         gust = context.get_discrete_state(self._gust).get_value()
-        discrete_state.set_value(self._gust,
-                                 self._decay * gust + self._drive * self._noise.Eval(context))
-
-    def _calc(self, context, output):
-        output.SetFromVector(self._mean + context.get_discrete_state(self._gust).get_value())
+        gust = self._decay * gust + self._drive * self._noise.Eval(context)
+        discrete_state.set_value(self._gust, gust)
+        discrete_state.set_value(self._wind, self._mean + gust)
