@@ -78,12 +78,24 @@ def run_campaign(out_dir: Path, jobs: list[CampaignJob], workers: int = 1,
     keys = set(zip(done["target_speed_setting"].round(3), done["seed"]))
     todo = [j for j in jobs if (round(j.target_speed, 3), j.seed) not in keys]
     bar = _progress(len(jobs), len(jobs) - len(todo), progress)
+    start, landed = time.perf_counter(), 0
     for row in _execute(todo, workers, scheduler):
         _append(out_dir, row)
+        landed += bool(row["success"])
         bar.update(1)
     bar.close()
+    if progress and todo:
+        print(throughput(len(todo), landed, time.perf_counter() - start), flush=True)
     rows = finished(out_dir)
     return rows.sort_values(["target_speed_setting", "seed"]).reset_index(drop=True)
+
+
+def throughput(missions: int, landed: int, wall: float) -> str:
+    """The campaign's pace: missions flown (and landed) per minute of wall time."""
+    minutes = wall / 60
+    return (f"{missions} landing missions in {minutes:.1f} min of wall time: "
+            f"{missions / minutes:.1f} landings per minute ({landed} landed, "
+            f"{landed / minutes:.1f} per minute)")
 
 
 def _execute(jobs, workers: int, scheduler):
