@@ -110,15 +110,29 @@ FC_STATUS = VectorLayout("fc_status", [
     ("stamp", 1), ("armed", 1), ("mode", 1), ("link_alive", 1), ("last_command_stamp", 1),
     ("refused", 1), ("last_refusal", 1), ("landed", 1)])
 
+# The vehicle's contacts (simulation only; alight.systems.sensors.contacts, DESIGN.md "Landing is
+# judged physically"), sampled every few plant steps: summed normal forces [N] of its legs on the
+# landing platform, of its legs on the ground, and of every other contact of the vehicle (its body
+# on anything, a leg on the car's body); the time spent in each kind of contact since the start [s]
+# (non-decreasing: a contact between two logged samples shows as an increase); the largest normal
+# force on one leg at any sample so far [N] (non-decreasing).
+CONTACTS = VectorLayout("contacts", [
+    ("legs_platform_force", 1), ("legs_ground_force", 1), ("other_contact_force", 1),
+    ("legs_platform_time", 1), ("legs_ground_time", 1), ("other_contact_time", 1),
+    ("peak_leg_force", 1)])
+
 # Output `ground_truth` (simulation only, never read onboard): p_WB [m]; q_WB (w, x, y, z);
 # v_WB [m/s, in W]; w_WB_B body rates [rad/s, in B]; wind velocity v_WA [m/s, in W];
 # the flight controller's ESC commands in [0, 1]; rotor thrusts [N]. The moving target (issue 5):
 # p_WT, q_WT, v_WT of the target frame T (the landing pattern's centre on the platform top, z up)
 # and target_present (1 when the scene has a target; else the target fields are zero/identity).
+# Then the vehicle's CONTACTS.
 GROUND_TRUTH = VectorLayout("ground_truth", [
     ("p_WB", 3), ("q_WB", 4), ("v_WB", 3), ("w_WB_B", 3), ("v_WA", 3), ("motor_command", 6),
-    ("rotor_thrust", 6), ("p_WT", 3), ("q_WT", 4), ("v_WT", 3), ("target_present", 1)],
-    defaults={"p_WT": 0.0, "q_WT": [1.0, 0.0, 0.0, 0.0], "v_WT": 0.0, "target_present": 0.0})
+    ("rotor_thrust", 6), ("p_WT", 3), ("q_WT", 4), ("v_WT", 3), ("target_present", 1),
+    *CONTACTS.fields],
+    defaults={"p_WT": 0.0, "q_WT": [1.0, 0.0, 0.0, 0.0], "v_WT": 0.0, "target_present": 0.0,
+              **{field: 0.0 for field, _ in CONTACTS.fields}})
 
 
 @dc.dataclass(frozen=True)

@@ -1,16 +1,23 @@
 """Scoring a landing run physically (DESIGN.md "Landing is judged physically") with the columns of
 L Table 1: outcome, average target speed, e_xy at touchdown, tracking duration (first detection
-to touchdown), plus the mission time and the reason for a failure.
+to touchdown), plus the mission time, the touchdown speed, the peak force on one leg and the
+reason for a failure.
 
-Judged from the simulation-only ground truth, never from the mission's own view: the first
-contact of the legs with anything after take-off is the touchdown (the body at its resting height
-above the platform top, or above the ground); a landing succeeds when that contact is on the
-platform within the scenario's impact limits and the vehicle, disarmed, is still at rest on the
-platform, upright, at the end of the run.
+Judged from the simulation-only ground truth, never from the mission's own view, by contact: the
+vehicle's contacts with the platform, the ground and anything else, accumulated every 4 ms
+(alight.systems.sensors.contacts), so that no contact and no force peak falls between two logged
+samples. The first contact after take-off is the touchdown: it must be the legs on the platform,
+within the scenario's impact speed limits (relative to the platform, just before the contact).
+From the touchdown to the end of the run, which lasts the settle time after the disarm, the
+vehicle touches nothing but the platform with its legs (a bounce on them allowed), no leg carries
+more than the airframe's structural limit `max_leg_force` at any sample, and the vehicle stays
+over the platform and upright; the earliest of these failures is the reason. Over the last
+`REST_WINDOW` it rests on its legs on the platform, at rest relative to it.
 """
 import dataclasses as dc
 
 import numpy as np
+import yaml
 
 from alight.diagrams.running.run_log import RunLog
 from alight.systems.mission.landing import Mode, Reason
@@ -18,8 +25,11 @@ from alight.systems.rotations import rotation_matrix, tilt_deg
 
 PLATFORM_HALF_SIZE = 0.75   # m, the 1.5 m x 1.5 m platform
 FOOT_REACH = 0.22           # m, the F550's feet from the body axis (legs can touch the edge)
-CONTACT_TOLERANCE = 0.03    # m, above the resting height: the feet touch
 AIRBORNE = 1.0              # m above the resting height: the vehicle has taken off
+MAX_TILT = 20.0             # deg, relative to the platform: tipped over beyond
+REST_WINDOW = 0.5           # s, at the end of the settle time: resting on the legs, at rest
+REST_SPEED = 0.1            # m/s relative to the platform: at rest (0.027-0.034 measured)
+SCENARIO_FILE = "scenario.yaml"  # a run folder's resolved scenario (diagrams/scenario.py)
 
 
 @dc.dataclass
@@ -31,13 +41,15 @@ class LandingScore:
     tracking_duration: float      # s, first detection to touchdown (nan without either)
     mission_time: float           # s, start to touchdown (or to the end of the run)
     touchdown_speed: float        # m/s, vertical, relative to the platform (nan without one)
+    peak_leg_force: float         # N, the largest normal force on one leg (nan without touchdown)
 
     def row(self) -> str:
         """The run as a row of L Table 1."""
         outcome = "S" if self.success else "F"
         return (f"v {self.target_speed:4.1f} m/s  e_xy {100 * self.e_xy:5.1f} cm  tracking "
                 f"{self.tracking_duration:5.2f} s  mission {self.mission_time:5.1f} s  "
-                f"touchdown {self.touchdown_speed:4.2f} m/s  {outcome}  ({self.reason})")
+                f"touchdown {self.touchdown_speed:4.2f} m/s  peak leg {self.peak_leg_force:4.0f} N"
+                f"  {outcome}  ({self.reason})")
 
 
 def _first(mask: np.ndarray) -> int | None:
@@ -45,20 +57,31 @@ def _first(mask: np.ndarray) -> int | None:
     return int(index[0]) if len(index) else None
 
 
+def contact_began(accumulated: np.ndarray) -> np.ndarray:
+    """Samples at which an accumulated contact time (`legs_ground_time`, ...) grew: a contact
+    within the interval since the previous sample, however short."""
+    return np.diff(accumulated, prepend=accumulated[0]) > 0.0
+
+
 def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
-                  mission_run: RunLog | None = None) -> LandingScore:
-    """Scores a `run_landing` run folder against the impact limits [m/s]. When the mission flew
-    in another process (`alight hil --mission land` against `alight sim-autopilot`), `run` is the
-    simulated autopilot's folder (ground truth, flight controller) and `mission_run` the
-    onboard one (its `mission_status`, its clock `autopilot_clock_offset` s behind `run`'s)."""
+                  mission_run: RunLog | None = None, *, settle_time: float | None = None,
+                  max_leg_force: float | None = None) -> LandingScore:
+    """Scores a landing run folder against the impact limits [m/s], the settle time [s] and the
+    structural limit of a leg [N] (by default the run's own: its scenario.yaml's
+    `scoring.settle_time` and `vehicle.airframe.max_leg_force`). When the mission flew in another
+    process (`alight hil --mission land` against `alight sim-autopilot`), `run` is the simulated
+    autopilot's folder (ground truth, flight controller; give the two limits) and `mission_run`
+    the onboard one (its `mission_status`, its clock `autopilot_clock_offset` s behind `run`'s)."""
+    if settle_time is None or max_leg_force is None:
+        scenario = run_scenario(run)
+        settle_time = scenario["scoring"]["settle_time"] if settle_time is None else settle_time
+        max_leg_force = (scenario["vehicle"]["airframe"]["max_leg_force"]
+                         if max_leg_force is None else max_leg_force)
     truth = run["ground_truth"]
     t = truth["time"].to_numpy()
-    p_B, v_B = run.field("ground_truth", "p_WB").to_numpy(), run.field("ground_truth",
-                                                                        "v_WB").to_numpy()
-    p_T, v_T = run.field("ground_truth", "p_WT").to_numpy(), run.field("ground_truth",
-                                                                        "v_WT").to_numpy()
-    q_B, q_T = run.field("ground_truth", "q_WB").to_numpy(), run.field("ground_truth",
-                                                                        "q_WT").to_numpy()
+    field = lambda name: run.field("ground_truth", name).to_numpy()
+    p_B, v_B, p_T, v_T, q_B, q_T = (field(name) for name in
+                                    ("p_WB", "v_WB", "p_WT", "v_WT", "q_WB", "q_WT"))
     rest = p_B[0, 2]  # on its legs on the ground at the start (ground at z = 0)
     status = (mission_run or run)["mission_status"]
     detections = status["first_detection"].dropna()
@@ -67,51 +90,100 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
         first_detection += mission_run.metadata["autopilot_clock_offset"]
     rel = p_B - p_T
     rel_T = np.einsum("nji,nj->ni", np.array([rotation_matrix(q) for q in q_T]), rel)
-    over_platform = np.all(np.abs(rel_T[:, :2]) <= PLATFORM_HALF_SIZE, axis=1)
     takeoff = _first(p_B[:, 2] > rest + AIRBORNE)
     nan = float("nan")
     speed = lambda end: float(np.mean(np.linalg.norm(v_T[_speed_window(t, first_detection, end)],
                                                      axis=1)))
+    peak_leg_force = float(truth["peak_leg_force"].iloc[-1])
 
     def failed(reason: str, end: int, touchdown: int | None = None) -> LandingScore:
-        e_xy = float(np.linalg.norm(rel[touchdown, :2])) if touchdown is not None else nan
-        vz = float(-(v_B[touchdown, 2] - v_T[touchdown, 2])) if touchdown is not None else nan
-        return LandingScore(False, reason, speed(end), e_xy,
-                            t[end] - first_detection if touchdown is not None else nan,
-                            float(t[end]), vz)
+        if touchdown is None:
+            return LandingScore(False, reason, speed(end), nan, nan, float(t[end]), nan, nan)
+        return LandingScore(False, reason, speed(end), float(np.linalg.norm(rel[touchdown, :2])),
+                            t[end] - first_detection, float(t[end]),
+                            _descent_speed(v_B, v_T, touchdown), peak_leg_force)
 
     if takeoff is None:
         return failed("never took off", len(t) - 1)
     after = np.arange(len(t)) > takeoff
-    near_platform = np.all(np.abs(rel_T[:, :2]) <= PLATFORM_HALF_SIZE + FOOT_REACH, axis=1)
-    on_platform = after & near_platform & (rel[:, 2] <= rest + CONTACT_TOLERANCE)
-    on_ground = after & (p_B[:, 2] <= rest + CONTACT_TOLERANCE)
-    touchdown = _first(on_platform | on_ground)
+    on_platform = after & contact_began(truth["legs_platform_time"].to_numpy())
+    on_ground = after & contact_began(truth["legs_ground_time"].to_numpy())
+    collided = after & contact_began(truth["other_contact_time"].to_numpy())
+    touchdown = _first(on_platform | on_ground | collided)
     if touchdown is None:
         reason = "no detection" if np.isnan(first_detection) else "no touchdown in time"
         return failed(reason, len(t) - 1)
-    if not on_platform[touchdown]:
-        return failed("touched the ground", touchdown, touchdown)
-    vertical = float(-(v_B[touchdown, 2] - v_T[touchdown, 2]))
-    horizontal = float(np.linalg.norm(v_B[touchdown, :2] - v_T[touchdown, :2]))
+    if on_ground[touchdown] or collided[touchdown]:
+        return failed("touched the ground" if on_ground[touchdown] else COLLIDED, touchdown,
+                      touchdown)
+    vertical = _descent_speed(v_B, v_T, touchdown)
+    horizontal = float(np.linalg.norm(v_B[touchdown - 1, :2] - v_T[touchdown - 1, :2]))
     if vertical > vertical_limit or horizontal > horizontal_limit:
         return failed(f"impact too hard ({vertical:.1f} m/s down, {horizontal:.1f} m/s across)",
                       touchdown, touchdown)
     end = len(t) - 1
-    tilt = tilt_deg(q_B[end])[0] - tilt_deg(q_T[end])[0]
-    relative_speed = np.linalg.norm(v_B[end] - v_T[end])
-    armed = run["fc_status"]["armed"].to_numpy()[-1] > 0.5
-    checks = [(not over_platform[end], "slid off the platform"),
-              (rel[end, 2] > rest + 0.1, "not resting on the platform"),
-              (np.any(on_ground[touchdown:]), "touched the ground"),
-              (abs(tilt) > 20.0, "tipped over"),
-              (relative_speed > 0.3, "not at rest on the platform"),
-              (armed, "still armed")]
+    since = np.arange(len(t)) >= touchdown
+    over_platform = np.all(np.abs(rel_T[:, :2]) <= PLATFORM_HALF_SIZE + FOOT_REACH, axis=1)
+    tilt = tilt_deg(q_B) - tilt_deg(q_T)
+    overloaded = truth["peak_leg_force"].to_numpy() > max_leg_force
+    # What went wrong from the touchdown on, the earliest first.
+    events = [(_first(since & on_ground), "touched the ground"),
+              (_first(since & collided), COLLIDED),
+              (_first(since & overloaded), f"impact too hard for the legs ({peak_leg_force:.0f} "
+                                           f"N on a leg, limit {max_leg_force:.0f} N)"),
+              (_first(since & ~over_platform), "slid off the platform"),
+              (_first(since & (np.abs(tilt) > MAX_TILT)), "tipped over")]
+    happened = [(at, reason) for at, reason in events if at is not None]
+    if happened:
+        return failed(min(happened, key=lambda event: event[0])[1], touchdown, touchdown)
+    armed = run["fc_status"]["armed"].to_numpy() > 0.5
+    disarms = np.flatnonzero(~armed[1:] & armed[:-1]) + 1
+    disarmed_at = run["fc_status"]["time"].to_numpy()[disarms[-1]] if len(disarms) else nan
+    settled = (t >= t[end] - REST_WINDOW) & since
+    resting = truth["legs_platform_force"].to_numpy() > 0.0
+    relative_speed = np.linalg.norm(v_B - v_T, axis=1)
+    checks = [(armed[-1], "still armed"),
+              (t[end] - disarmed_at < settle_time - _period(t),
+               "run ended before the settle time"),
+              (not np.all(resting[settled]), "not resting on the platform"),
+              (np.any(relative_speed[settled] > REST_SPEED), "not at rest on the platform")]
     for bad, reason in checks:
         if bad:
             return failed(reason, touchdown, touchdown)
     return LandingScore(True, "landed", speed(touchdown), float(np.linalg.norm(rel[touchdown, :2])),
-                        float(t[touchdown] - first_detection), float(t[touchdown]), vertical)
+                        float(t[touchdown] - first_detection), float(t[touchdown]), vertical,
+                        peak_leg_force)
+
+
+COLLIDED = "hit the car or touched with the airframe"
+
+
+def _descent_speed(v_B: np.ndarray, v_T: np.ndarray, touchdown: int) -> float:
+    """Downward speed relative to the platform at the last sample before the first contact."""
+    return float(-(v_B[touchdown - 1, 2] - v_T[touchdown - 1, 2]))
+
+
+def _period(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+
+
+def run_scenario(run: RunLog) -> dict:
+    """A run folder's resolved scenario (scenario.yaml) as plain YAML data (tags dropped)."""
+    path = run.path / SCENARIO_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing; a run folder without its scenario is scored "
+                                f"with settle_time and max_leg_force given")
+    return yaml.load(path.read_text(), Loader=_UntaggedLoader)
+
+
+class _UntaggedLoader(yaml.SafeLoader):
+    """YAML without the typed tags (`!WaypointPlan`, ...) of Drake's yaml_dump_typed."""
+
+
+_UntaggedLoader.add_multi_constructor("!", lambda loader, suffix, node: (
+    loader.construct_mapping(node, deep=True) if isinstance(node, yaml.MappingNode) else
+    loader.construct_sequence(node, deep=True) if isinstance(node, yaml.SequenceNode) else
+    loader.construct_scalar(node)))
 
 
 def _speed_window(t: np.ndarray, start: float, end: int) -> np.ndarray:

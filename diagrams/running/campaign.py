@@ -17,7 +17,8 @@ from alight.diagrams.running.runner import run
 from alight.diagrams.scenario import Scenario, load_scenario
 
 COLUMNS = ["target_speed_setting", "seed", "success", "reason", "target_speed", "e_xy",
-           "tracking_duration", "mission_time", "touchdown_speed", "wall_time", "run_dir"]
+           "tracking_duration", "mission_time", "touchdown_speed", "peak_leg_force", "wall_time",
+           "run_dir"]
 
 
 @dc.dataclass(frozen=True)
@@ -127,15 +128,20 @@ def _progress(total: int, initial: int, enabled: bool):
 
 def summarize(rows: pd.DataFrame) -> pd.DataFrame:
     """Per target speed, as L Table 1 in bulk: runs, success rate, median and worst e_xy of the
-    successful landings [cm], median tracking duration [s], mean measured target speed."""
+    successful landings [cm], median tracking duration [s], mean measured target speed, and the
+    median and worst peak force on one leg of every run that touched down [N] (the structural
+    limit is the airframe's `max_leg_force`)."""
     def one(group: pd.DataFrame) -> pd.Series:
         ok = group[group["success"].astype(bool)]
+        forces = group["peak_leg_force"].dropna()
         return pd.Series({
             "runs": len(group), "landed": len(ok), "success_rate": len(ok) / len(group),
             "target_speed": group["target_speed"].mean(),
             "e_xy_median_cm": 100 * ok["e_xy"].median() if len(ok) else np.nan,
             "e_xy_worst_cm": 100 * ok["e_xy"].max() if len(ok) else np.nan,
-            "tracking_median_s": ok["tracking_duration"].median() if len(ok) else np.nan})
+            "tracking_median_s": ok["tracking_duration"].median() if len(ok) else np.nan,
+            "leg_force_median_n": forces.median() if len(forces) else np.nan,
+            "leg_force_worst_n": forces.max() if len(forces) else np.nan})
     return rows.groupby("target_speed_setting").apply(one, include_groups=False)
 
 
@@ -151,11 +157,13 @@ def write_summary(out_dir: Path, rows: pd.DataFrame) -> pd.DataFrame:
 
 def summary_markdown(summary: pd.DataFrame) -> str:
     lines = ["| target speed [m/s] | runs | landed | success | e_xy median [cm] | e_xy worst [cm] "
-             "| tracking median [s] |", "|---|---|---|---|---|---|---|"]
+             "| tracking median [s] | peak leg force median / worst [N] |",
+             "|---|---|---|---|---|---|---|---|"]
     for speed, r in summary.iterrows():
         lines.append(f"| {speed:.1f} ({r.target_speed:.2f} measured) | {r.runs:.0f} | "
                      f"{r.landed:.0f} | {100 * r.success_rate:.0f} % | {r.e_xy_median_cm:.1f} | "
-                     f"{r.e_xy_worst_cm:.1f} | {r.tracking_median_s:.2f} |")
+                     f"{r.e_xy_worst_cm:.1f} | {r.tracking_median_s:.2f} | "
+                     f"{r.leg_force_median_n:.0f} / {r.leg_force_worst_n:.0f} |")
     return "\n".join(lines) + "\n"
 
 

@@ -10,6 +10,7 @@ def add_ground(plant, friction: float, perceived: bool = True):
     """The ground half-space; `perceived=False` hides it from cameras (a textured ground is seen)."""
     properties = ProximityProperties()
     AddContactMaterial(friction=CoulombFriction(friction, friction), properties=properties)
+    properties.AddProperty("material", "relaxation_time", 0.0)  # rigid: the legs are compliant
     plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground",
                                     properties)
     colour = np.array([0.45, 0.55, 0.4, 1.0])

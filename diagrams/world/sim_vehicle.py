@@ -12,6 +12,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import RandomSource
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
+from alight.diagrams.world.contacts import add_contacts
 from alight.diagrams.world.flight_controller import make_flight_controller
 from alight.diagrams.world.ground import add_ground
 from alight.diagrams.world.rgbd_camera import add_rgbd_camera, add_rgbd_scene
@@ -40,6 +41,10 @@ class SimVehicleConfig:
     # Body drag sampled and held at this period (the flight controller's 250 Hz), 0: at every
     # plant step (AerodynamicDrag).
     drag_period: float = bounded(0.004, 0.0, 0.1, "s")
+    # The contacts (ground truth, landing scores) sampled at this period, 0: at every plant step.
+    # At 250 Hz a touchdown's peak leg force is seen within 3 % (the legs' force changes by
+    # under 1 % per ms), at a quarter of the CPU of every step.
+    contact_period: float = bounded(0.004, 0.0, 0.1, "s")
     ground_friction: float = bounded(0.8, 0.0, 2.0)
     initial_position: list[float] = bounded([0.0, 0.0], -1e4, 1e4, "m")  # x, y on the ground
     initial_heading: float = bounded(0.0, -360.0, 360.0, "deg")
@@ -147,6 +152,10 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
 
     target_state, down_image = add_target_systems(builder, plant, scene_graph, scene, body)
     truth = builder.AddNamedSystem("ground_truth", GroundTruth(n, target_state is not None))
+    builder.Connect(add_contacts(builder, plant, scene_graph, params, body,
+                                 scene.vehicle.platform if scene.vehicle is not None else None,
+                                 config.contact_period or config.time_step),
+                    truth.GetInputPort("contacts"))
     if target_state is not None:
         builder.Connect(target_state, truth.GetInputPort("target_state"))
     builder.Connect(body_state, truth.GetInputPort("body_state"))

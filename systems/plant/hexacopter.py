@@ -34,6 +34,10 @@ class HexacopterParams:
     drag_linear: list[float] = bounded([0.25, 0.25, 0.35], 0.0, 20.0, "N/(m/s)")
     drag_quadratic: list[float] = bounded([0.06, 0.06, 0.15], 0.0, 20.0, "N/(m/s)^2")
     rotors: list[RotorParams] = dc.field(default_factory=list)
+    # The landing legs: collision geometries of `body` in the SDF (their contacts judge a landing).
+    legs: list[str] = dc.field(default_factory=lambda: ["foot_1", "foot_2", "foot_3", "foot_4"])
+    # Structural limit of one leg: the largest normal force it withstands (hexacopter_f550.yaml).
+    max_leg_force: float = bounded(180.0, 1.0, 1e5, "N")
 
 
 def load_hexacopter_params(filename: str = "hexacopter_f550.yaml") -> HexacopterParams:
