@@ -29,8 +29,9 @@ from alight.hw.frame_channel import FrameSubscriber
 from alight.hw.link import CommandDenied, LinkParams, LinkTimeout, MavlinkLink
 from alight.models import model_path
 from alight.systems.autopilot.commander import CommanderParams, check_command
-from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, ActiveMode, CameraFrame,
-                                     CommandMode, ImuSamples, Refusal, VectorLayout)
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, NO_COMMAND_STAMP,
+                                     ActiveMode, CameraFrame, CommandMode, ImuSamples, Refusal,
+                                     VectorLayout)
 from alight.systems.params import bounded, load_params
 
 CAMERAS = ("rgbd", "down_image")
@@ -131,7 +132,7 @@ class MavlinkCommandSender(LeafSystem):
         initial[_SENDER_STATE.slice("held")] = FC_COMMAND.pack(
             stamp=-np.inf, mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
             thrust=0.0, arm=0.0)
-        initial[_SENDER_STATE.slice("last_sent_stamp")] = np.nan
+        initial[_SENDER_STATE.slice("last_sent_stamp")] = NO_COMMAND_STAMP
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(params.command_period, 0.0, self._update)
         self.DeclareVectorOutputPort("command_status", COMMAND_STATUS.size, self._status,
@@ -219,7 +220,8 @@ class MavlinkTelemetry(LeafSystem):
         initial = np.concatenate([
             FC_ATTITUDE.pack(stamp=0.0, q_WB=[1, 0, 0, 0], w_B=np.zeros(3)),
             FC_STATUS.pack(stamp=0.0, armed=0, mode=ActiveMode.DISARMED, link_alive=0,
-                           last_command_stamp=np.nan, refused=0, last_refusal=Refusal.NONE,
+                           last_command_stamp=NO_COMMAND_STAMP, refused=0,
+                           last_refusal=Refusal.NONE,
                            landed=1),
             np.zeros(LINK_STATUS.size)])
         self._xd = self.DeclareDiscreteState(initial)

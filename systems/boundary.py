@@ -104,11 +104,13 @@ FC_COMMAND = VectorLayout("fc_command", [
 FC_ATTITUDE = VectorLayout("fc_attitude", [("stamp", 1), ("q_WB", 4), ("w_B", 3)])
 
 # Output `fc_status`: stamp [s]; armed; active mode (ActiveMode); link alive (a valid command newer
-# than the stale timeout); stamp of the last accepted command [s]; refused command count; last
-# refusal (Refusal); landed (the land detector's verdict).
+# than the stale timeout); stamp of the last accepted command [s] (NO_COMMAND_STAMP before the
+# first: every value on a port is finite); refused command count; last refusal (Refusal); landed
+# (the land detector's verdict).
 FC_STATUS = VectorLayout("fc_status", [
     ("stamp", 1), ("armed", 1), ("mode", 1), ("link_alive", 1), ("last_command_stamp", 1),
     ("refused", 1), ("last_refusal", 1), ("landed", 1)])
+NO_COMMAND_STAMP = -1.0  # s: stamps are times of the simulation or the onboard clock, from 0
 
 # The vehicle's contacts (simulation only; alight.systems.sensors.contacts, DESIGN.md "Landing is
 # judged physically"), sampled every few plant steps: summed normal forces [N] of its legs on the

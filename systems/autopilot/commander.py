@@ -21,8 +21,8 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.autopilot.setpoint import SETPOINT
-from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, ActiveMode, CommandMode,
-                                     Refusal, VectorLayout)
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, NO_COMMAND_STAMP,
+                                     ActiveMode, CommandMode, Refusal, VectorLayout)
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, heading_quaternion, rotation_matrix
 from alight.systems.thrust_curve import GRAVITY, ThrustCurve
@@ -111,6 +111,8 @@ class Commander(LeafSystem):
             stamp=-np.inf, mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
             thrust=0.0, arm=0.0)
         initial[self._layout.slice("arm_released")] = 1.0
+        initial[self._layout.slice("status")] = FC_STATUS.vector(
+            last_command_stamp=NO_COMMAND_STAMP)
         initial[self._layout.slice("setpoint")] = SETPOINT.pack(
             mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3), thrust=0.0,
             armed=0.0)
@@ -201,7 +203,7 @@ class Commander(LeafSystem):
         x[L.slice("status")] = FC_STATUS.pack(
             stamp=now, armed=float(armed), mode=mode, link_alive=float(link_alive),
             last_command_stamp=FC_COMMAND.get(held, "stamp") if x[L.slice("accepted_once")][0]
-            else np.nan,
+            else NO_COMMAND_STAMP,
             refused=x[L.slice("refused")], last_refusal=x[L.slice("last_refusal")],
             landed=float(landed))
         discrete_state.set_value(self._xd, x)
