@@ -40,13 +40,17 @@ def hover_run(tmp_path_factory):
 
 def assert_landed(run, scenario, speed: float):
     """A landing run judged by the physics and held to L Table 1's ranges: landed, e_xy under
-    0.5 m (the paper: 2.5-45.8 cm), 2-15 s from the first detection (4.8-7.7 s), the target at
-    `speed`. Returns the score."""
+    0.5 m (the paper: 2.5-45.8 cm), 3.5-7.7 s from the first detection to touchdown, the target
+    at `speed`. Returns the score.
+
+    Tracking: the paper's 10 landings took 4.8-7.7 s; the descents alone, from the waypoint at
+    L Table 2's speeds once caught up, take 2.6 s. Measured at 2 m/s, seed 0: 7.07 s (direct
+    stack, one detection timeout on the way), 4.61 s (managed), 4.40 s (VIO)."""
     from alight.diagrams.analysis.landing import score_landing
     impact = scenario.scoring.impact
     score = score_landing(run, impact.vertical_speed, impact.horizontal_speed)
     assert score.success, score.row()
     assert score.e_xy < 0.5
-    assert 2.0 < score.tracking_duration < 15.0
+    assert 3.5 < score.tracking_duration < 7.7, score.row()
     assert score.target_speed == pytest.approx(speed, abs=0.6)
     return score

@@ -58,7 +58,10 @@ def test_each_filter_converges_to_the_truth_within_its_sources_noise(rtk_run):
         assert v_rms < 0.15, (name, v_rms)  # optic flow 0.05 m/s noise at 50 Hz
         eta_error = np.degrees(np.abs(np.angle(np.exp(1j * (
             status[f"{name}_heading"].to_numpy()[keep] - eta_true[keep])))))
-        assert eta_error.max() < 3.0, (name, eta_error.max())  # FC heading 3 deg std, gyro
+        # The FC's attitude errs by 0.3 deg std (sim_vehicle.yaml fc_estimate, 5 s correlation);
+        # the filters fuse its heading (assumed 3 deg std) or its rate: 0.36 deg (gnss, rtk) and
+        # 0.08 deg (optic flow) at most, measured.
+        assert eta_error.max() < 0.5, (name, eta_error.max())
 
 
 def _switches(run):

@@ -77,8 +77,18 @@ def test_a_sampled_trajectory_is_followed_within_limits():
     times = PERIOD * np.arange(1, len(references) + 1)    # references are stamped a tick ahead
     wanted = TrackerGoal(samples, 0.0, 0.05).sample(times + PERIOD)
     error = np.linalg.norm(references[:, REFERENCE.slice("p")] - wanted[:, :3], axis=1)
-    # KNOWN: a catch-up transient of up to ~1.1 m over the first 8 s (see docs/controllers.md)
-    assert error[times > 9.0].max() < 0.06, error[times > 9.0].max()
+    # The catch-up from rest on the moving goal (docs/controllers.md): the lag of reaching
+    # 1.5 m/s from rest under medium's jerk and snap peaks at 1.06 m at 1.54 s (measured), then
+    # closes without a stop by 3 s (0.13 m) and settles; measured peaks per window in comments.
+    peak = int(np.argmax(error))
+    assert error[peak] < 1.1 and times[peak] < 2.0, (error[peak], times[peak])
+    assert np.all(np.diff(error[peak:np.searchsorted(times, 3.0)]) <= 0.0)
+    for start, end, bound in ((3.0, 5.0, 0.15),    # 0.137 m
+                              (5.0, 7.0, 0.10),    # 0.090 m
+                              (7.0, 9.0, 0.06),    # 0.050 m
+                              (9.0, 16.0, 0.04)):  # 0.030 m
+        window = (times > start) & (times <= end)
+        assert error[window].max() < bound, (start, error[window].max())
 
 
 def fastest_return(v, a, j, jerk, snap, seconds=4.0, dt=1e-4):
