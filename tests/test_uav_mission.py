@@ -1,10 +1,14 @@
 """The managed flight stack (M Sec. 7.2-7.6) flown through the mission API on the simulated
 vehicle: UAV manager routines and refusals, controller switching, an estimator frame switch
 during a trajectory, a failsafe on estimate loss."""
+import shutil
+
 import numpy as np
+import pandas as pd
 import pytest
 from pydrake.systems.primitives import ConstantVectorSource
 
+from alight.diagrams.analysis.flight import managed_flight_failures
 from alight.diagrams.cli import main
 from alight.diagrams.running.run_log import RunLog
 from alight.diagrams.running.mission import Mission, MissionError
@@ -38,7 +42,8 @@ def test_takeoff_goto_switch_land_home_with_refusals(tmp_path):
         takeoff = mission.takeoff(2.0)
         assert takeoff.done and takeoff.duration < 8.0
         assert mission.takeoff(2.0).refusal == "not_idle"
-        assert mission.goto([80.0, 0.0, 2.0]).refusal == "outside_area"
+        refused = mission.goto([80.0, 0.0, 2.0])
+        assert refused.refusal == "outside_area" and not refused.done
         assert mission.switch_controller("pid").refusal == "unknown_name"
         assert mission.goto([3.0, 1.0, 2.5], heading=0.5).done
         mission.wait(2.0)
@@ -121,6 +126,7 @@ def test_fly_command_flies_waypoints_and_a_trajectory_file_and_refuses_bad_input
                  "--switch-controller-at", "6:se3", "--run-dir", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert "landed and disarmed   True" in out and "refused" not in out
+    assert out.rstrip().endswith("outcome               flew and landed")
     run = RunLog(tmp_path / "run")
     p = true_position(run)
     for waypoint in ([2.0, 0.0, 2.0], [2.0, 2.0, 2.0]):   # the corner: 0.08-0.17 m measured
@@ -148,3 +154,25 @@ def test_fly_command_flies_waypoints_and_a_trajectory_file_and_refuses_bad_input
                            "exactly one")):
         assert main(["fly", *argv]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_fly_command_fails_a_refused_routine_and_judges_landed_by_contact(tmp_path, capsys):
+    """A trajectory above the safety area (20 m) is refused: the vehicle lands where it is, and
+    `alight fly` exits 1. Landed is judged by the legs' ground contact at rest, not the armed
+    flag: the same run folder with the legs off the ground at the end is not landed."""
+    assert main(["fly", "--waypoints", "2,0,2; 2,2,30", "--run-dir", str(tmp_path / "run")]) == 1
+    out = capsys.readouterr().out
+    assert "trajectory    refused (outside_area)" in out
+    assert "landed and disarmed   True" in out
+    assert out.rstrip().endswith("outcome               FAILED: trajectory refused (outside_area)")
+    run = RunLog(tmp_path / "run")
+    assert managed_flight_failures(run) == ["trajectory refused (outside_area)"]
+    shutil.copytree(tmp_path / "run", tmp_path / "hanging")
+    truth_file = tmp_path / "hanging" / "ground_truth.parquet"
+    truth = pd.read_parquet(truth_file)
+    last = truth["time"] > truth["time"].iloc[-1] - 0.2  # disarmed, and in the air
+    truth.loc[last, "legs_ground_force"] = 0.0
+    truth.to_parquet(truth_file)
+    assert RunLog(tmp_path / "hanging")["fc_status"]["armed"].iloc[-1] == 0.0
+    assert managed_flight_failures(RunLog(tmp_path / "hanging")) == [
+        "trajectory refused (outside_area)", "not landed (not at rest on its legs on the ground)"]

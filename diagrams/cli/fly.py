@@ -6,7 +6,8 @@ from alight.diagrams.cli.options import VEHICLE_FLAGS, add_common, args_scenario
 
 NAME = "fly"
 HELP = ("take off, fly a trajectory through waypoints (or from a file) on the flight stack's "
-        "trackers and controllers (control manager, UAV manager), land")
+        "trackers and controllers (control manager, UAV manager), land; exits 1 when the flight "
+        "failed (a routine refused or timed out, a failsafe, not landed on its legs at rest)")
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -38,7 +39,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from alight.diagrams.running.simulation import make_meshcat
-    from alight.diagrams.analysis.flight import summarize_managed_flight
+    from alight.diagrams.analysis.flight import managed_flight_failures, summarize_managed_flight
     from alight.diagrams.running.flights import fly_plan
     from alight.systems.params import ConfigError
     try:
@@ -56,7 +57,7 @@ def run(args) -> int:
                    controller=args.controller, tracker=args.tracker, **stack)
     print("\n".join(summarize_managed_flight(run)))
     keep_meshcat_open(args)
-    return 0
+    return 1 if managed_flight_failures(run) else 0
 
 
 def _flight_plan(args):

@@ -374,8 +374,8 @@ class UavManager(LeafSystem):
         memory.done = True
 
     def _progress(self, context, memory: UavMemory, estimate, now: float) -> None:
-        if memory.done or memory.phase == Phase.EMERGENCY:
-            return
+        if memory.done or memory.refusal != UavRefusal.NONE or memory.phase == Phase.EMERGENCY:
+            return  # a refused command is never done (the vehicle keeps the routine before it)
         if memory.phase == Phase.TAKING_OFF and memory.thrust_enable < 0.5:
             return self._arming(context, memory, now)
         if memory.phase == Phase.LANDING:
