@@ -29,7 +29,7 @@ AIRBORNE = 1.0              # m above the resting height: the vehicle has taken 
 MAX_TILT = 20.0             # deg, relative to the platform: tipped over beyond
 REST_WINDOW = 0.5           # s, at the end of the settle time: resting on the legs, at rest
 REST_SPEED = 0.1            # m/s relative to the platform: at rest (0.027-0.034 measured)
-SCENARIO_FILE = "scenario.yaml"  # a run folder's resolved scenario (diagrams/scenario.py)
+SCENARIO_FILE = "scenario.yaml"  # a run folder's resolved scenario (diagrams.scenario's name)
 
 
 @dc.dataclass
@@ -73,7 +73,7 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
     autopilot's folder (ground truth, flight controller; give the two limits) and `mission_run`
     the onboard one (its `mission_status`, its clock `autopilot_clock_offset` s behind `run`'s)."""
     if settle_time is None or max_leg_force is None:
-        scenario = run_scenario(run)
+        scenario = pinned_scenario(run)
         settle_time = scenario["scoring"]["settle_time"] if settle_time is None else settle_time
         max_leg_force = (scenario["vehicle"]["airframe"]["max_leg_force"]
                          if max_leg_force is None else max_leg_force)
@@ -167,8 +167,9 @@ def _period(t: np.ndarray) -> float:
     return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
 
 
-def run_scenario(run: RunLog) -> dict:
-    """A run folder's resolved scenario (scenario.yaml) as plain YAML data (tags dropped)."""
+def pinned_scenario(run: RunLog) -> dict:
+    """A run folder's resolved scenario (scenario.yaml, as diagrams/scenario.py writes it; this
+    layer reads run folders only) as plain YAML data, the typed tags dropped."""
     path = run.path / SCENARIO_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing; a run folder without its scenario is scored "
