@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from alight.diagrams.analysis.landing import REST_SPEED, REST_WINDOW, contact_began
+from alight.diagrams.analysis.landing import REST_SPEED, REST_WINDOW, contact_began, first_index
 from alight.diagrams.running.run_log import RunLog
 from alight.systems.boundary import ActiveMode
 from alight.systems.control.scripted_pilot import PilotProfile
@@ -75,7 +75,7 @@ def managed_flight_failures(run: RunLog) -> list[str]:
     truth = run["ground_truth"]
     t = truth["time"].to_numpy()
     ground = contact_began(truth["legs_ground_time"].to_numpy())
-    flying = _first_false(ground)  # the legs left the ground at the take-off
+    flying = first_index(~ground)  # the legs left the ground at the take-off
     if flying is None:
         return failures + ["never took off"]
     if np.any(contact_began(truth["other_contact_time"].to_numpy())[flying:]):
@@ -93,11 +93,6 @@ def managed_flight_failures(run: RunLog) -> list[str]:
     if run["fc_status"]["armed"].iloc[-1] > 0.5:
         failures.append("still armed")
     return failures
-
-
-def _first_false(mask: np.ndarray) -> int | None:
-    index = np.flatnonzero(~mask)
-    return int(index[0]) if len(index) else None
 
 
 def summarize_managed_flight(run: RunLog) -> list[str]:

@@ -52,7 +52,8 @@ class LandingScore:
                 f"  {outcome}  ({self.reason})")
 
 
-def _first(mask: np.ndarray) -> int | None:
+def first_index(mask: np.ndarray) -> int | None:
+    """The first index where `mask` holds, None if nowhere."""
     index = np.flatnonzero(mask)
     return int(index[0]) if len(index) else None
 
@@ -90,7 +91,7 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
         first_detection += mission_run.metadata["autopilot_clock_offset"]
     rel = p_B - p_T
     rel_T = np.einsum("nji,nj->ni", np.array([rotation_matrix(q) for q in q_T]), rel)
-    takeoff = _first(p_B[:, 2] > rest + AIRBORNE)
+    takeoff = first_index(p_B[:, 2] > rest + AIRBORNE)
     nan = float("nan")
     speed = lambda end: float(np.mean(np.linalg.norm(v_T[_speed_window(t, first_detection, end)],
                                                      axis=1)))
@@ -109,7 +110,7 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
     on_platform = after & contact_began(truth["legs_platform_time"].to_numpy())
     on_ground = after & contact_began(truth["legs_ground_time"].to_numpy())
     collided = after & contact_began(truth["other_contact_time"].to_numpy())
-    touchdown = _first(on_platform | on_ground | collided)
+    touchdown = first_index(on_platform | on_ground | collided)
     if touchdown is None:
         reason = "no detection" if np.isnan(first_detection) else "no touchdown in time"
         return failed(reason, len(t) - 1)
@@ -126,13 +127,14 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
     over_platform = np.all(np.abs(rel_T[:, :2]) <= PLATFORM_HALF_SIZE + FOOT_REACH, axis=1)
     tilt = tilt_deg(q_B) - tilt_deg(q_T)
     overloaded = truth["peak_leg_force"].to_numpy() > max_leg_force
+    overload = (f"impact too hard for the legs ({peak_leg_force:.0f} N on a leg, limit "
+                f"{max_leg_force:.0f} N)")
     # What went wrong from the touchdown on, the earliest first.
-    events = [(_first(since & on_ground), "touched the ground"),
-              (_first(since & collided), COLLIDED),
-              (_first(since & overloaded), f"impact too hard for the legs ({peak_leg_force:.0f} "
-                                           f"N on a leg, limit {max_leg_force:.0f} N)"),
-              (_first(since & ~over_platform), "slid off the platform"),
-              (_first(since & (np.abs(tilt) > MAX_TILT)), "tipped over")]
+    events = [(first_index(since & on_ground), "touched the ground"),
+              (first_index(since & collided), COLLIDED),
+              (first_index(since & overloaded), overload),
+              (first_index(since & ~over_platform), "slid off the platform"),
+              (first_index(since & (np.abs(tilt) > MAX_TILT)), "tipped over")]
     happened = [(at, reason) for at, reason in events if at is not None]
     if happened:
         return failed(min(happened, key=lambda event: event[0])[1], touchdown, touchdown)
