@@ -22,9 +22,14 @@ def test_notebook_executes(path, hover_run, tmp_path, monkeypatch):
     notebook = nbformat.read(path, as_version=4)
     NotebookClient(notebook, timeout=600, kernel_name="python3",
                    resources={"metadata": {"path": str(tmp_path)}}).execute()
-    errors = [o for c in notebook.cells if c.cell_type == "code" for o in c.get("outputs", [])
-              if o.get("output_type") == "error"]
-    assert not errors
+    outputs = [o for c in notebook.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+    assert not [o for o in outputs if o.get("output_type") == "error"]
+    printed = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
+    assert "skipped" not in printed, printed  # every part ran (../shared/data is there)
+    if path.name == "sysid.ipynb":
+        # The shared PX4 log barely moves its attitude setpoint: the identification refuses it,
+        # naming why, instead of returning a meaningless fit (the notebook's last section).
+        assert "refused:" in printed, printed
 
 
 def test_help_lists_every_command_with_a_description():
