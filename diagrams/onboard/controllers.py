@@ -24,7 +24,7 @@ class ControllersConfig:
     disturbance_limits: DisturbanceLimits = dc.field(default_factory=DisturbanceLimits)
     se3: Se3Params = dc.field(default_factory=Se3Params)
     mpc: MpcForceParams = dc.field(default_factory=MpcForceParams)
-    failsafe: FailsafeParams = dc.field(default_factory=FailsafeParams)
+    failsafe: FailsafeParams = param_file(FailsafeParams, "failsafe.yaml")
     # The landing paper's linear MPC (L Sec. 6.1-6.2, attitude + thrust, 20 Hz) as a controller
     # of the control manager: its tuning and identified model (models/).
     linear_mpc: LinearMpcParams = param_file(LinearMpcParams, "linear_mpc.yaml")

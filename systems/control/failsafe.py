@@ -1,18 +1,24 @@
 """The feedforward failsafe controller, M Sec. 5.10: a landing that needs no position feedback.
 
-On activation it takes the last estimated mass (the apparent mass M(34) of the last command's
-thrust, on that command's tilt: the vertical force the previous controller was producing, which is
-m_e g in hover) and the heading of the last command. It then commands, through the flight
-controller's own attitude loop (attitude+thrust mode, as the paper relies on the Pixhawk's),
-a level attitude at that heading and the hover thrust M(33) of that mass, decreasing at
-`thrust_decrease_rate` (fraction of the hover force per second) down to `descent_fraction` of it:
-a moderate, drag-limited descent that stops the vehicle from accelerating in any direction.
+On activation it takes the last estimated mass m_e and the heading of the last command. m_e is the
+apparent mass M(34) of the issued thrust on its tilt (the vertical force the flying controller
+produces, m_e g in hover), low-passed over `mass_filter_time` while the failsafe waits inactive:
+one command's thrust alone is a few per cent off hover whenever the vehicle is accelerating, as
+much as the descent's margin (measured on the landing stack: the MPC's command 3 % over hover
+thrust at the hand-over gave a mass 5 % over, and the "descent" climbed for 10 s).
+
+It then commands, through the flight controller's own attitude loop (attitude+thrust mode, as
+the paper relies on the Pixhawk's), a level attitude at that heading and the hover thrust M(33)
+of that mass, decreasing at `thrust_decrease_rate` (fraction of the hover force per second) down
+to `descent_fraction` of it: a moderate, drag-limited descent that stops the vehicle from
+accelerating in any direction.
 
 Touchdown, then disarm: when the state estimate is valid, the vehicle is on the ground once it has
 been seen descending (faster than `descent_speed`) and its vertical speed (low-passed over
-`speed_filter_time`) then stays below
-`touchdown_speed` for `touchdown_time`; without a usable estimate, after `max_descent_time`.
-It then commands zero thrust and arm = 0.
+`speed_filter_time`) then stays below `touchdown_speed` for `touchdown_time`, however long the
+descent takes. Only while there is no usable estimate does a timer stand in for it: the vehicle
+is taken to be down once `max_descent_time` has passed without one (since the activation or the
+last usable estimate). It then commands zero thrust and arm = 0.
 """
 import dataclasses as dc
 
@@ -22,6 +28,7 @@ from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, VectorLayout
 from alight.systems.control.controller import (Controller, ControllerReason, command_is_usable,
                                                level_command, status_vector)
 from alight.systems.control.force_controller import VehicleModel
+from alight.systems.control.touchdown import apparent_mass
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, rotation_matrix
 from alight.systems.thrust_curve import GRAVITY
@@ -36,12 +43,14 @@ class FailsafeParams:
     touchdown_speed: float = bounded(0.1, 0.01, 10.0, "m/s")
     touchdown_time: float = bounded(0.5, 0.0, 30.0, "s")
     speed_filter_time: float = bounded(0.2, 0.0, 10.0, "s")  # low-pass on the estimated v_z
-    max_descent_time: float = bounded(60.0, 1.0, 3600.0, "s")
+    max_descent_time: float = bounded(60.0, 1.0, 3600.0, "s")  # without a usable estimate
+    mass_filter_time: float = bounded(2.0, 0.0, 60.0, "s")     # m_e: M(34) low-passed (0: last)
 
 
 _STATE = VectorLayout("failsafe_state", [
     ("start", 1), ("hover_force", 1), ("heading", 1), ("mass", 1),
-    ("descended", 1), ("quiet_time", 1), ("touched_down", 1), ("v_z", 1)])
+    ("descended", 1), ("quiet_time", 1), ("touched_down", 1), ("v_z", 1),
+    ("estimate_time", 1)])   # the last tick with a usable estimate (the activation before one)
 
 
 class FailsafeController(Controller):
@@ -57,27 +66,51 @@ class FailsafeController(Controller):
         self._curve = vehicle.curve
         self._acceleration = self.DeclareDiscreteState(3)
         self._state = self.DeclareDiscreteState(np.zeros(_STATE.size))
+        # m_e: the issued commands' M(34) low-passed while inactive (NaN before a flying one).
+        self._mass_seen = self.DeclareDiscreteState([np.nan])
         self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
 
-    def last_mass(self, last_command: np.ndarray) -> float:
-        """The mass the last command was holding up, M(34) on its tilt, within `mass_range`."""
+    def flying_mass(self, command: np.ndarray) -> float:
+        """The mass a flying command holds up, M(34) on its tilt, within `mass_range`; NaN for a
+        command that is not usable, not armed or without thrust."""
+        if not command_is_usable(command) or FC_COMMAND.get(command, "arm") < 0.5 \
+                or FC_COMMAND.get(command, "thrust") <= 0.0:
+            return float("nan")
         lo, hi = np.asarray(self._p.mass_range) * self._vehicle.mass
-        if not command_is_usable(last_command) or FC_COMMAND.get(last_command, "arm") < 0.5:
-            return self._vehicle.mass
-        tilt_cos = rotation_matrix(FC_COMMAND.get(last_command, "q_WD"))[2, 2]
-        apparent = float(self._curve.apparent_mass(FC_COMMAND.get(last_command, "thrust")))
-        return float(np.clip(apparent * tilt_cos, lo, hi))
+        return float(np.clip(apparent_mass(command, self._vehicle), lo, hi))
+
+    def last_mass(self, context, last_command: np.ndarray) -> float:
+        """m_e: the low-passed mass of the issued commands, else the last command's, else the
+        nominal mass."""
+        for mass in (context.get_discrete_state(self._mass_seen).get_value()[0],
+                     self.flying_mass(last_command)):
+            if np.isfinite(mass):
+                return float(mass)
+        return self._vehicle.mass
+
+    def _update_inactive(self, context, discrete_state) -> None:
+        """Status INACTIVE; the issued command's mass into m_e."""
+        super()._update_inactive(context, discrete_state)
+        mass = self.flying_mass(self._last.Eval(context))
+        if np.isnan(mass):
+            return
+        seen = context.get_discrete_state(self._mass_seen).get_value()[0]
+        alpha = min(1.0, self._period / self._p.mass_filter_time) \
+            if self._p.mass_filter_time > 0 else 1.0
+        discrete_state.set_value(self._mass_seen, [
+            mass if np.isnan(seen) else seen + alpha * (mass - seen)])
 
     def _activate(self, context, discrete_state, last, estimate) -> None:
-        """The mass and the heading of the last command; on the ground when it was not flying."""
-        mass = self.last_mass(last)
+        """m_e and the heading of the last command; on the ground when it was not flying."""
+        mass = self.last_mass(context, last)
         flying = command_is_usable(last) and FC_COMMAND.get(last, "arm") > 0.5 \
             and FC_COMMAND.get(last, "thrust") > 0.0
         eta = heading(rotation_matrix(FC_COMMAND.get(last, "q_WD"))) \
             if command_is_usable(last) else 0.0
         discrete_state.set_value(self._state, _STATE.pack(
             start=context.get_time(), hover_force=mass * GRAVITY, heading=eta, mass=mass,
-            descended=0.0, quiet_time=0.0, touched_down=0.0 if flying else 1.0, v_z=0.0))
+            descended=0.0, quiet_time=0.0, touched_down=0.0 if flying else 1.0, v_z=0.0,
+            estimate_time=context.get_time()))
 
     def _update_active(self, context, discrete_state, estimate) -> None:
         now = context.get_time()
@@ -104,11 +137,11 @@ class FailsafeController(Controller):
     def _detect_touchdown(self, x: np.ndarray, estimate, now: float) -> None:
         """`estimate`: None when it is not valid."""
         S = _STATE
-        if now - x[S.slice("start")][0] > self._p.max_descent_time:
-            x[S.slice("touched_down")] = 1.0
-            return
         if estimate is None:
+            if now - x[S.slice("estimate_time")][0] > self._p.max_descent_time:
+                x[S.slice("touched_down")] = 1.0
             return
+        x[S.slice("estimate_time")] = now
         alpha = min(1.0, self._period / max(self._p.speed_filter_time, 1e-9))
         v_z = x[S.slice("v_z")][0] + alpha * (STATE_ESTIMATE.get(estimate, "v_EB")[2]
                                               - x[S.slice("v_z")][0])

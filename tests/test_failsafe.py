@@ -1,0 +1,90 @@
+"""The feedforward failsafe controller (M Sec. 5.10) alone, on fixed inputs: touchdown from the
+estimate however long the descent, the timer only without an estimate, the last known mass from
+the issued commands (issue 21)."""
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE
+from alight.systems.control.controller import level_command
+from alight.systems.control.failsafe import FailsafeController, FailsafeParams
+from alight.systems.control.force_controller import VehicleModel
+from alight.systems.thrust_curve import GRAVITY
+
+VEHICLE = VehicleModel()
+HOVER_THRUST = float(VEHICLE.curve.thrust(VEHICLE.mass * GRAVITY))
+
+
+def falling(v_z: float, valid: float = 1.0) -> np.ndarray:
+    return STATE_ESTIMATE.vector(p_EB=[0.0, 0.0, 5.0], v_EB=[0.0, 0.0, v_z], valid=valid)
+
+
+def reference(p=(0.0, 0.0, 5.0), v=(0.0, 0.0, 0.0)) -> np.ndarray:
+    return REFERENCE.pack(stamp=0.0, p=p, v=v, a=0.0, j=0.0, heading=0.0, heading_rate=0.0)
+
+
+class FailsafeBench:
+    """The failsafe controller as `dut`, active from a hover command; `max_descent_time` 2 s."""
+
+    def __init__(self):
+        self.dut = FailsafeController(VEHICLE, FailsafeParams(max_descent_time=2.0), 0.01)
+        self.context = self.dut.CreateDefaultContext()
+        self.simulator = Simulator(self.dut, self.context)
+        self.dut.GetInputPort("reference").FixValue(self.context, reference())
+        self.dut.GetInputPort("active").FixValue(self.context, [1.0])
+        self.dut.GetInputPort("last_command").FixValue(
+            self.context, level_command(0.0, 0.0, HOVER_THRUST, 1.0))
+
+    def armed_for(self, estimate: np.ndarray, seconds: float) -> float:
+        """Advances `seconds` on `estimate`: how long the command stayed armed [s]."""
+        self.dut.GetInputPort("state_estimate").FixValue(self.context, estimate)
+        armed, end = 0.0, self.context.get_time() + seconds
+        while self.context.get_time() < end - 1e-9:
+            self.simulator.AdvanceTo(self.context.get_time() + 0.01)
+            armed += 0.01 * FC_COMMAND.get(self.command(), "arm")
+        return armed
+
+    def command(self) -> np.ndarray:
+        return self.dut.GetOutputPort("fc_command").Eval(self.context)
+
+
+def test_a_descent_with_an_estimate_longer_than_max_descent_time_stays_armed_until_touchdown():
+    """Issue 21: the timer fired before the estimate was read, disarming a long descent in the
+    air (here 6 s down, timer 2 s)."""
+    bench = FailsafeBench()
+    assert bench.armed_for(falling(-1.0), 6.0) == pytest.approx(6.0)
+    assert FC_COMMAND.get(bench.command(), "thrust") > 0.9 * HOVER_THRUST
+    # On the ground: v_z low-passed over 0.2 s under 0.1 m/s, then 0.5 s quiet: disarmed.
+    armed = bench.armed_for(falling(0.0), 2.0)
+    assert 0.5 < armed < 0.5 + 0.5
+    assert FC_COMMAND.get(bench.command(), "arm") == 0.0
+    assert FC_COMMAND.get(bench.command(), "thrust") == 0.0
+
+
+def test_without_an_estimate_the_timer_counts_from_the_last_usable_one():
+    bench = FailsafeBench()
+    assert bench.armed_for(falling(-1.0), 3.0) == pytest.approx(3.0)   # 3 s > 2 s, estimated
+    armed = bench.armed_for(falling(-1.0, valid=0.0), 4.0)
+    assert armed == pytest.approx(2.0, abs=0.015)                      # then 2 s without one
+    assert FC_COMMAND.get(bench.command(), "arm") == 0.0
+
+
+def test_the_descent_starts_from_the_mass_the_commands_held_not_from_the_last_one():
+    """M Sec. 5.10 "the last known estimated mass": M(34) of the issued commands low-passed while
+    inactive. From the last command alone, 3 % over hover thrust (a hover's ripple) the failsafe
+    held 5 % more force than hover, and its 5 % descent margin was gone."""
+    dut = FailsafeController(VEHICLE, FailsafeParams(), 0.01)
+    context = dut.CreateDefaultContext()
+    simulator = Simulator(dut, context)
+    dut.GetInputPort("reference").FixValue(context, reference())
+    dut.GetInputPort("state_estimate").FixValue(context, falling(0.0))
+    dut.GetInputPort("active").FixValue(context, [0.0])
+    for k in range(17):                        # 4.25 s of hover commands, +-3 % at 2 Hz
+        dut.GetInputPort("last_command").FixValue(context, level_command(
+            0.0, 0.0, (1.0 + 0.03 * (-1) ** k) * HOVER_THRUST, 1.0))
+        simulator.AdvanceTo(context.get_time() + 0.25)
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    simulator.AdvanceTo(context.get_time() + 0.01)    # activated from the +3 % command
+    thrust = FC_COMMAND.get(dut.GetOutputPort("fc_command").Eval(context), "thrust")
+    # Within the 2 s filter's ripple (0.6 % after a +3 % quarter second), not 3 % over.
+    assert thrust == pytest.approx(HOVER_THRUST, rel=0.01)
