@@ -26,6 +26,7 @@ from alight.models import model_path
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpcParams
 from alight.systems.control.scripted_pilot import PilotProfile
+from alight.systems.managers.failsafe_switch import FailsafeSwitchParams
 from alight.systems.estimation.bank import BankParams, check_bank
 from alight.systems.mission.landing import LandingMissionParams
 from alight.systems.mission.waypoints import WaypointMissionParams
@@ -67,6 +68,9 @@ class Onboard:
     controller: str = "linear_mpc"       # landing_managed: a controller of `control_manager`
     linear_mpc: LinearMpcParams = param_file(LinearMpcParams, "linear_mpc.yaml")
     linear_model: LinearModelParams = param_file(LinearModelParams, "linear_model.yaml")
+    # landing, waypoints: the fallback to the failsafe (the managed stacks: control_manager's)
+    failsafe_switch: FailsafeSwitchParams = param_file(FailsafeSwitchParams,
+                                                       "failsafe_switch.yaml")
     mocap: MocapParams = dc.field(default_factory=MocapParams)
     perception: TargetEstimatorParams = param_file(TargetEstimatorParams,
                                                    "target_perception.yaml")  # landing stacks

@@ -52,7 +52,7 @@ def _landing(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard = scenario.onboard
     parts = add_landing_onboard(builder, vehicle, scenario.mission, onboard.linear_mpc,
                                 onboard.linear_model, odometry, onboard.perception,
-                                scenario.camera_blackouts)
+                                onboard.failsafe_switch, scenario.camera_blackouts)
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,
                         parts.finished(scenario.scoring.settle_time), {"trackers": []}, parts)
 
@@ -70,7 +70,8 @@ def _landing_managed(builder, scenario: Scenario, vehicle, odometry) -> OnboardS
 def _waypoints(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard, waypoints = scenario.onboard, np.asarray(scenario.mission.waypoints, float)
     parts = add_waypoint_onboard(builder, vehicle, waypoints, scenario.mission.params, odometry,
-                                 onboard.linear_mpc, onboard.linear_model)
+                                 onboard.linear_mpc, onboard.linear_model,
+                                 onboard.failsafe_switch)
     return OnboardStack(parts.loggers, mission_duration(waypoints,
                                                         scenario.simulator.max_duration),
                         parts.finished(rest=scenario.scoring.settle_time), {}, parts)

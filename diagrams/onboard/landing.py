@@ -13,6 +13,8 @@ from alight.diagrams.running.simulation import DisarmedAfter, evaluate
 from alight.systems.boundary import TARGET_ESTIMATE
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpcParams
+from alight.systems.managers.control_manager import gave_up
+from alight.systems.managers.failsafe_switch import FailsafeSwitchParams
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
                                             Mode)
 from alight.systems.perception.target_estimator import TargetEstimatorParams
@@ -28,15 +30,20 @@ class LandingOnboard:
     loggers: RunLoggers
 
     def finished(self, settle_time: float) -> DisarmedAfter:
-        """Stop condition: `settle_time` s after the mission landed and the flight controller
-        disarmed."""
-        return landed_and_disarmed(self.mission, self.loop.vehicle, settle_time)
+        """Stop condition: `settle_time` s after the mission landed (or the failsafe took over)
+        and the flight controller disarmed."""
+        return landed_and_disarmed(self.mission, self.loop.vehicle, settle_time,
+                                   self.loop.switch)
 
 
-def landed_and_disarmed(mission: LandingMission, vehicle, settle_time: float) -> DisarmedAfter:
-    """Stop condition: `settle_time` s after `mission` landed and `vehicle` disarmed."""
+def landed_and_disarmed(mission: LandingMission, vehicle, settle_time: float,
+                        manager) -> DisarmedAfter:
+    """Stop condition: `settle_time` s after `mission` landed, or `manager` (the control manager
+    or the failsafe switch: a `manager_status` output) gave up the mission (failsafe, emergency
+    landing), with `vehicle` disarmed."""
     return DisarmedAfter(lambda context: MISSION_STATUS.get(evaluate(
-        mission, "mission_status", context), "mode") == Mode.LANDED, vehicle, settle_time)
+        mission, "mission_status", context), "mode") == Mode.LANDED or gave_up(evaluate(
+            manager, "manager_status", context)), vehicle, settle_time)
 
 
 def add_down_camera_perception(builder: DiagramBuilder, vehicle, state_estimate,
@@ -62,16 +69,16 @@ def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: L
 
 def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
                         mpc_params: LinearMpcParams, model: LinearModelParams, odometry,
-                        perception: TargetEstimatorParams,
+                        perception: TargetEstimatorParams, fallback: FailsafeSwitchParams,
                         camera_blackouts=()) -> LandingOnboard:
     """The onboard landing stack on `vehicle`'s boundary ports (the simulated or the MAVLink
     vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, `odometry` and
-    the linear MPC (`add_mpc_control`), target perception `perception` on `down_image` (with
-    `camera_blackouts`) and the run logging."""
+    the linear MPC with its `fallback` to the failsafe (`add_mpc_control`), target perception
+    `perception` on `down_image` (with `camera_blackouts`) and the run logging."""
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
     loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
                            mission.GetOutputPort("arm"), odometry=odometry,
-                           mpc_params=mpc_params, model=model)
+                           mpc_params=mpc_params, model=model, fallback=fallback)
     ports = add_down_camera_perception(builder, vehicle, loop.state_estimate_port, perception,
                                        camera_blackouts)
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))

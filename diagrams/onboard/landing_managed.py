@@ -44,8 +44,10 @@ class LandingManagedOnboard:
     loggers: RunLoggers
 
     def finished(self, settle_time: float) -> DisarmedAfter:
-        """Stop condition: `settle_time` s after the mission landed and the vehicle disarmed."""
-        return landed_and_disarmed(self.mission, self.vehicle, settle_time)
+        """Stop condition: `settle_time` s after the mission landed (or the manager gave it up:
+        failsafe, emergency landing) and the vehicle disarmed."""
+        return landed_and_disarmed(self.mission, self.vehicle, settle_time,
+                                   self.managed.manager)
 
 
 def landing_manager_config(controller: str,

@@ -9,6 +9,8 @@ from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.running.simulation import DisarmedAfter, evaluate
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpcParams
+from alight.systems.managers.control_manager import gave_up
+from alight.systems.managers.failsafe_switch import FailsafeSwitchParams
 from alight.systems.mission.waypoints import Phase, WaypointMission, WaypointMissionParams
 
 
@@ -31,20 +33,25 @@ class WaypointOnboard:
     loggers: RunLoggers
 
     def finished(self, rest: float = 1.0):
-        """Stop condition: `rest` s after the mission landed and the flight controller disarmed."""
+        """Stop condition: `rest` s after the mission landed (or the failsafe took over) and the
+        flight controller disarmed."""
         return DisarmedAfter(lambda context: evaluate(self.mission, "phase", context)[0]
-                             == Phase.LANDED, self.loop.vehicle, rest)
+                             == Phase.LANDED or gave_up(evaluate(self.loop.switch,
+                                                                 "manager_status", context)),
+                             self.loop.vehicle, rest)
 
 
 def add_waypoint_onboard(builder, vehicle, waypoints: np.ndarray,
                          mission: WaypointMissionParams, odometry, mpc_params: LinearMpcParams,
-                         model: LinearModelParams) -> WaypointOnboard:
+                         model: LinearModelParams,
+                         fallback: FailsafeSwitchParams) -> WaypointOnboard:
     """The onboard side of a waypoint flight on `vehicle`'s boundary ports (simulated or
-    MAVLink): the waypoint mission, `odometry` and the linear MPC (`add_mpc_control`), and their
-    logging."""
+    MAVLink): the waypoint mission, `odometry` and the linear MPC with its `fallback` to the
+    failsafe (`add_mpc_control`), and their logging."""
     mission_system = builder.AddNamedSystem("mission", WaypointMission(waypoints, mission))
     loop = add_mpc_control(builder, vehicle, mission_system.GetOutputPort("reference"),
-                           mission_system.GetOutputPort("arm"), mpc_params, model, odometry)
+                           mission_system.GetOutputPort("arm"), mpc_params, model, odometry,
+                           fallback)
     builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
     loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
     return WaypointOnboard(mission_system, loop, loggers)

@@ -16,7 +16,8 @@ from alight.diagrams.onboard.controllers import ControllersConfig, load_controll
 from alight.diagrams.onboard.estimation import BankOdometry
 from alight.diagrams.onboard.landoff import LANDED, add_landoff_loop
 from alight.diagrams.onboard.mpc_loop import (MpcLoop, add_mpc_control, add_mpc_logging,
-                                              load_linear_model, load_linear_mpc, mocap_odometry)
+                                              load_failsafe_switch, load_linear_model,
+                                              load_linear_mpc, mocap_odometry)
 from alight.diagrams.onboard.track import add_faulty_mocap
 from alight.diagrams.onboard.uav import FlightPlan, load_uav_manager_params
 from alight.diagrams.onboard.vio import VioRun, load_rgbd_camera_params, load_vio_params
@@ -35,6 +36,7 @@ from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpcParams
 from alight.systems.control.scripted_pilot import PilotProfile
 from alight.systems.estimation.bank import BankParams
+from alight.systems.managers.failsafe_switch import FailsafeSwitchParams
 from alight.systems.mission.scripted_reference import ScriptedReference
 from alight.systems.mission.waypoints import WaypointMissionParams
 from alight.systems.sensors.estimate_faults import EstimateFaultParams
@@ -47,12 +49,13 @@ from alight.systems.vio.estimator import VioParams
 
 
 def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port,
-                 mpc_params: LinearMpcParams, model: LinearModelParams, odometry, meshcat=None,
-                 estimate_filter=None) -> MpcLoop:
+                 mpc_params: LinearMpcParams, model: LinearModelParams, odometry,
+                 fallback: FailsafeSwitchParams, meshcat=None, estimate_filter=None,
+                 command_filter=None) -> MpcLoop:
     """The simulated vehicle of `config` closed by `add_mpc_control` (arguments as there)."""
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config, meshcat))
     return add_mpc_control(builder, vehicle, reference_port, arm_port, mpc_params, model,
-                           odometry, estimate_filter)
+                           odometry, fallback, estimate_filter, command_filter)
 
 
 def vehicle_scenario(config: SimVehicleConfig, stack: str, mission, seed: int = 0,
@@ -79,19 +82,23 @@ def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0
 
 def fly_reference(config: SimVehicleConfig, fn, duration: float, run_dir, seed: int = 0,
                   mpc_params: LinearMpcParams | None = None, estimate_filter=None,
-                  odometry=None, log=None, model: LinearModelParams | None = None) -> RunLog:
+                  odometry=None, log=None, model: LinearModelParams | None = None,
+                  fallback: FailsafeSwitchParams | None = None,
+                  command_filter=None) -> RunLog:
     """Arms, then follows the scripted reference `fn(t) -> (p_W, v_W)` with the MPC for
     `duration` s (experiments, tests and benchmarks of the closed loop; `odometry` and `log` as
-    in `fly_waypoints`; the MPC's `mpc_params` and `model` default to models/linear_mpc.yaml and
-    models/linear_model.yaml)."""
+    in `fly_waypoints`, the filters as in `add_mpc_control`; the MPC's `mpc_params` and `model`
+    and its `fallback` to the failsafe default to models/linear_mpc.yaml,
+    models/linear_model.yaml and models/failsafe_switch.yaml)."""
     mpc_params = load_linear_mpc() if mpc_params is None else mpc_params
     model = load_linear_model() if model is None else model
+    fallback = load_failsafe_switch() if fallback is None else fallback
     odometry = mocap_odometry(MocapParams()) if odometry is None else odometry
     builder = DiagramBuilder()
     reference = builder.AddNamedSystem("reference", ScriptedReference(fn))
     loop = add_mpc_loop(builder, config, reference.GetOutputPort("reference"),
-                        reference.GetOutputPort("arm"), mpc_params, model, odometry,
-                        estimate_filter=estimate_filter)
+                        reference.GetOutputPort("arm"), mpc_params, model, odometry, fallback,
+                        estimate_filter=estimate_filter, command_filter=command_filter)
     loggers = add_mpc_logging(builder, loop, reference.GetOutputPort("reference"))
     if log is not None:
         log(builder, loggers)

@@ -10,7 +10,7 @@ the previously-active plugin", so that the switch is imperceptible). When the st
 controller keeps in the estimator frame are re-expressed in the new one.
 
 Also here: what the manager reads of every controller (`ControllerReason`, `status_vector`,
-`command_is_usable`) and the safe level command (`level_command`).
+`command_is_usable`, `controller_failed`) and the safe level command (`level_command`).
 """
 import enum
 
@@ -56,6 +56,15 @@ def command_is_usable(command: np.ndarray) -> bool:
     """A finite FC_COMMAND with thrust in [0, 1] (what a controller may start from)."""
     return bool(np.all(np.isfinite(command))
                 and 0.0 <= FC_COMMAND.get(command, "thrust") <= 1.0)
+
+
+def controller_failed(status: np.ndarray, command: np.ndarray) -> bool:
+    """What makes the control manager fall back to the failsafe (M Sec. 7.2): `valid = 0` on a
+    computing controller's CONTROLLER_STATUS (INACTIVE: it has not computed yet), or a command
+    that is not usable (`command_is_usable`: NaN or infinite anywhere, thrust out of [0, 1])."""
+    refused = CONTROLLER_STATUS.get(status, "valid") < 0.5 \
+        and CONTROLLER_STATUS.get(status, "reason") != ControllerReason.INACTIVE
+    return bool(refused or not command_is_usable(command))
 
 
 class Controller(LeafSystem):

@@ -63,7 +63,7 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
                                      TRACKER_STATUS, VectorLayout, estimate_is_valid)
 from alight.systems.control.controller import (ControllerReason, command_is_usable,
-                                               level_command)
+                                               controller_failed, level_command)
 from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
 from alight.systems.control.force_controller import VehicleModel
 from alight.systems.control.touchdown import light_time
@@ -107,6 +107,13 @@ MANAGER_STATUS = VectorLayout("manager_status", [
     ("active", 1), ("mode", 1), ("refusal", 1), ("held", 1), ("control_error", 1),
     ("failsafe_cause", 1), ("switches", 1), ("tracker", 1), ("tracker_switches", 1)],
     defaults={"tracker": -1.0, "tracker_switches": 0.0})
+
+
+def gave_up(status: np.ndarray) -> bool:
+    """A MANAGER_STATUS (the control manager's, or a direct stack's failsafe switch's) that has
+    left NORMAL flight for good: the emergency landing, the failsafe, landed after them."""
+    return MANAGER_STATUS.get(status, "mode") in (ManagerMode.ELAND, ManagerMode.FAILSAFE,
+                                                  ManagerMode.LANDED)
 
 
 @dc.dataclass
@@ -508,14 +515,9 @@ class ControlManager(LeafSystem):
         if not estimate_ok:
             return FailsafeCause.BAD_ESTIMATE
         active = int(_STATE.get(x, "active"))
-        if _STATE.get(x, "active_since") < now:    # it has computed since it became active
-            status = self._statuses[active].Eval(context)
-            command = self._commands[active].Eval(context)
-            if CONTROLLER_STATUS.get(status, "valid") < 0.5 \
-                    and CONTROLLER_STATUS.get(status, "reason") != ControllerReason.INACTIVE:
-                return FailsafeCause.BAD_CONTROLLER
-            if not command_is_usable(command):
-                return FailsafeCause.BAD_CONTROLLER
+        if _STATE.get(x, "active_since") < now and controller_failed(   # it has computed
+                self._statuses[active].Eval(context), self._commands[active].Eval(context)):
+            return FailsafeCause.BAD_CONTROLLER
         return FailsafeCause.NONE
 
     def _chi(self, context, x: np.ndarray, now: float) -> tuple[np.ndarray, Refusal]:

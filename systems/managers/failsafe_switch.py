@@ -1,0 +1,181 @@
+"""The control manager's fallback (M Sec. 7.2) for a stack with one controller and no tracker: the
+direct stacks, whose mission drives the landing paper's linear MPC (diagrams/onboard/mpc_loop.py).
+It hands over to the feedforward failsafe controller (M Sec. 5.10), as the control manager does
+(systems/managers/control_manager.py), for the same causes (`FailsafeCause`):
+
+- no valid state estimate (BAD_ESTIMATE);
+- the controller reports `valid = 0` (its estimate, its solver), or its command is not usable:
+  NaN or infinite anywhere, thrust out of [0, 1] (BAD_CONTROLLER, `controller_failed`);
+- a control error |p_ref - p_EB| over `failsafe_threshold` plus the step allowance
+  (CONTROL_ERROR). Without a tracker the mission steps its reference (a waypoint, the target at
+  its first detection), and a step is not an error: the part of each change of the reference that
+  its own velocity does not explain is added to the allowance, which shrinks at `step_speed`;
+  the reference the vehicle takes off to is a step from where it rests.
+
+It watches while the mission flies (its `arm` request [arm, thrust enable] both 1; before the
+take-off and after the mission has disarmed nothing is watched). There is no way back: the
+failsafe flies until it has landed and disarmed (as the control manager's FAILSAFE).
+
+The switch follows the activation contract of alight.systems.control.controller: the decision is
+a function of the inputs and the switch's state at the tick, so `failsafe.active` rises at the tick
+of the hand-over, the failsafe controller computes at that tick and reads, as `last_command`, the
+command issued last (the switch's output still forwards it until the update). The output never
+carries a command that is not usable: such a command is replaced by the last usable one (and the
+failsafe takes over at that tick).
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem, ValueProducer
+
+from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
+                                     VectorLayout, estimate_is_valid)
+from alight.systems.control.controller import command_is_usable, controller_failed, level_command
+from alight.systems.control.failsafe import FailsafeParams
+from alight.systems.managers.control_manager import MANAGER_STATUS, FailsafeCause, ManagerMode
+from alight.systems.params import bounded, param_file
+
+
+@dc.dataclass
+class FailsafeSwitchParams:
+    """The fallback of a direct stack (models/failsafe_switch.yaml)."""
+    period: float = bounded(0.01, 0.001, 0.1, "s")      # with the failsafe controller, 100 Hz
+    failsafe_threshold: float = bounded(8.0, 0.1, 1000.0, "m")   # control error beyond steps
+    step_speed: float = bounded(1.0, 0.01, 100.0, "m/s")   # the allowance for a step shrinks
+    failsafe: FailsafeParams = param_file(FailsafeParams, "failsafe.yaml")
+
+
+_STATE = VectorLayout("failsafe_switch_state", [
+    ("mode", 1), ("failsafe_cause", 1), ("control_error", 1), ("allowance", 1),
+    ("p_ref", 3), ("v_ref", 3), ("t_ref", 1)])   # the reference as last seen changing
+_MODE, _FAILSAFE = _STATE.slice("mode").start, float(ManagerMode.FAILSAFE)
+
+
+class FailsafeSwitch(LeafSystem):
+    """Inputs  `state_estimate` STATE_ESTIMATE; `reference` REFERENCE (what the controller
+            follows); `arm` (2) the mission's [arm, thrust enable]; `controller.fc_command`
+            FC_COMMAND and `controller.controller_status` CONTROLLER_STATUS of the controller;
+            `failsafe.fc_command` FC_COMMAND of the failsafe controller
+    Outputs `fc_command` FC_COMMAND (the controller's, from the hand-over the failsafe's; never
+            unusable: the vehicle's command and both controllers' `last_command`);
+            `controller.active`, `failsafe.active` (1); `manager_status` MANAGER_STATUS (active
+            0 controller / 1 failsafe, mode NORMAL / FAILSAFE, failsafe_cause, control_error,
+            switches)
+    Updated every `period`.
+    """
+
+    def __init__(self, params: FailsafeSwitchParams):
+        super().__init__()
+        self._p = params
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self._arm = self.DeclareVectorInputPort("arm", 2)
+        self._commands = [self.DeclareVectorInputPort(f"{name}.fc_command", FC_COMMAND.size)
+                          for name in ("controller", "failsafe")]
+        self._status = self.DeclareVectorInputPort("controller.controller_status",
+                                                   CONTROLLER_STATUS.size)
+        self._state = self.DeclareDiscreteState(_STATE.vector(
+            mode=ManagerMode.NORMAL, p_ref=np.nan, v_ref=np.nan, t_ref=np.nan))
+        self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
+        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
+        everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
+        # The tick's decision, computed once per context change: the `NAME.active` outputs and
+        # the update read it.
+        self._decision = self.DeclareCacheEntry(
+            "decision", ValueProducer(allocate=AbstractValue.Make(None).Clone,
+                                      calc=lambda context, value: value.set_value(
+                                          self._compute_decision(context))), everything)
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
+                                     everything)
+        for index, name in enumerate(("controller", "failsafe")):
+            self.DeclareVectorOutputPort(
+                f"{name}.active", 1, lambda context, output, index=index: output.SetFromVector(
+                    [float(self._failsafe_after(context) == index)]), everything)
+        self.DeclareVectorOutputPort("manager_status", MANAGER_STATUS.size, self._calc_status,
+                                     {self.all_state_ticket()})
+
+    @staticmethod
+    def _in_failsafe(x: np.ndarray) -> bool:
+        return x[_MODE] == _FAILSAFE
+
+    def _failsafe_after(self, context) -> int:
+        """1 when the failsafe computes at this tick (0: the controller)."""
+        return int(self._in_failsafe(self._decide(context)))
+
+    def _calc_command(self, context, output):
+        x = context.get_discrete_state(self._state).get_value()
+        command = self._commands[int(self._in_failsafe(x))].Eval(context)
+        if not command_is_usable(command):
+            command = context.get_discrete_state(self._last_command).get_value()
+        output.SetFromVector(command)
+
+    def _calc_status(self, context, output):
+        x = context.get_discrete_state(self._state).get_value()
+        failsafe = self._in_failsafe(x)
+        output.SetFromVector(MANAGER_STATUS.vector(
+            active=float(failsafe), mode=_STATE.get(x, "mode"),
+            control_error=_STATE.get(x, "control_error"),
+            failsafe_cause=_STATE.get(x, "failsafe_cause"), switches=float(failsafe)))
+
+    def _update(self, context, discrete_state):
+        discrete_state.set_value(self._state, self._decide(context))
+        x = context.get_discrete_state(self._state).get_value()   # what the output forwards
+        command = self._commands[int(self._in_failsafe(x))].Eval(context)
+        if command_is_usable(command):
+            discrete_state.set_value(self._last_command, command)
+
+    def _decide(self, context) -> np.ndarray:
+        """The switch's state after this tick (cached; do not modify it)."""
+        return self._decision.Eval(context)
+
+    def _compute_decision(self, context) -> np.ndarray:
+        """The switch's state after this tick (a function of the inputs and the state)."""
+        S = _STATE
+        now = context.get_time()
+        x = context.get_discrete_state(self._state).get_value().copy()
+        estimate, reference = self._estimate.Eval(context), self._reference.Eval(context)
+        arm, thrust_enable = self._arm.Eval(context) > 0.5
+        flying = bool(arm and thrust_enable)
+        estimate_ok = estimate_is_valid(estimate)
+        self._follow_reference(x, reference, now, flying,
+                               estimate if estimate_ok else None)
+        error = float(np.linalg.norm(REFERENCE.get(reference, "p")
+                                     - STATE_ESTIMATE.get(estimate, "p_EB"))) \
+            if estimate_ok else float("nan")
+        x[S.slice("control_error")] = error if np.isfinite(error) else 0.0
+        if self._in_failsafe(x) or not flying:
+            return x
+        cause = FailsafeCause.NONE
+        if not estimate_ok:
+            cause = FailsafeCause.BAD_ESTIMATE
+        elif controller_failed(self._status.Eval(context), self._commands[0].Eval(context)):
+            cause = FailsafeCause.BAD_CONTROLLER
+        elif not error <= self._p.failsafe_threshold + S.get(x, "allowance"):
+            cause = FailsafeCause.CONTROL_ERROR
+        if cause != FailsafeCause.NONE:
+            x[S.slice("mode")] = ManagerMode.FAILSAFE
+            x[S.slice("failsafe_cause")] = cause
+        return x
+
+    def _follow_reference(self, x: np.ndarray, reference: np.ndarray, now: float, flying: bool,
+                          estimate) -> None:
+        """The step allowance: grown by each change of the reference that its last velocity does
+        not explain, shrunk at `step_speed`. Until the take-off the vehicle's own position (the
+        `estimate`, None when not valid) stands for the last reference: the reference it takes
+        off to is a step too."""
+        S = _STATE
+        if not flying or not np.all(np.isfinite(x[S.slice("p_ref")])):
+            x[S.slice("p_ref")] = np.nan if estimate is None else \
+                STATE_ESTIMATE.get(estimate, "p_EB")
+            x[S.slice("v_ref")], x[S.slice("t_ref")], x[S.slice("allowance")] = 0.0, now, 0.0
+            if not flying:
+                return
+        p, v = REFERENCE.get(reference, "p"), REFERENCE.get(reference, "v")
+        allowance = max(0.0, S.get(x, "allowance") - self._p.step_speed * self._p.period)
+        if not np.array_equal(p, S.get(x, "p_ref")) and np.all(np.isfinite(reference)):
+            if np.all(np.isfinite(x[S.slice("p_ref")])):
+                allowance += float(np.linalg.norm(p - S.get(x, "p_ref") - S.get(x, "v_ref")
+                                                  * (now - S.get(x, "t_ref"))))
+            x[S.slice("p_ref")], x[S.slice("v_ref")], x[S.slice("t_ref")] = p, v, now
+        x[S.slice("allowance")] = allowance
