@@ -115,9 +115,20 @@ def _execute(jobs, workers: int, scheduler):
         for job in jobs:
             yield run_job(job)
         return
+    # The pool flies every submitted job even when one raises: table every finished one before
+    # raising the first error (a second call then flies only the failed jobs).
+    failed = []
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for future in as_completed([pool.submit(run_job, job) for job in jobs]):
+        futures = {pool.submit(run_job, job): job for job in jobs}
+        for future in as_completed(futures):
+            if future.exception() is not None:
+                failed.append((futures[future], future.exception()))
+                continue
             yield future.result()
+    if failed:
+        job, error = failed[0]
+        raise RuntimeError(f"{len(failed)} of {len(jobs)} campaign runs failed, the first "
+                           f"{job.run_dir}: {error!r}") from error
 
 
 def _progress(total: int, initial: int, enabled: bool):
