@@ -56,15 +56,13 @@ class TargetMotion:
     pull_times: list[float] = dc.field(default_factory=list)    # s, pulls at fixed times
 
 
-ESTIMATORS_NOTE = ("mocap, vio (L Sec. 5.1: the forward RGB-D camera `vio_camera`, its frame "
-                   "at the take-off point), bank (M Sec. 3.5: the arbiter) or a filter of the bank")
-
-
 @dc.dataclass
 class Onboard:
-    """The onboard stack (diagrams/onboard/registry.py `STACKS`) and its parts' parameters."""
+    """The onboard stack (diagrams/stacks.py `STACKS`) and its parts' parameters. `estimator`:
+    mocap, vio (L Sec. 5.1: the forward RGB-D camera `vio_camera`, its frame at the take-off
+    point), bank (M Sec. 3.5: the arbiter) or a filter of the bank."""
     stack: str = choice("landing", "landing_managed", "waypoints", "hover")
-    estimator: str = "mocap"             # odometry: ESTIMATORS_NOTE
+    estimator: str = "mocap"
     controller: str = "linear_mpc"       # landing_managed: a controller of `control_manager`
     linear_mpc: LinearMpcParams = param_file(LinearMpcParams, "linear_mpc.yaml")
     linear_model: LinearModelParams = param_file(LinearModelParams, "linear_model.yaml")

@@ -212,14 +212,14 @@ class RunLoggers:
         if self.imu_sink is not None:
             frame = self.imu_sink.take()
             if len(frame):
-                self.folder.append("imu", pa.RecordBatch.from_pandas(
+                self.folder.append("imu", pa.Table.from_pandas(
                     frame, schema=IMU_SCHEMA, preserve_index=False))
         timers = self.all_timers()
         frame = timing_frame(timers)
         for timer in timers.values():
             timer.clear()
         if len(frame):
-            self.folder.append("timing", pa.RecordBatch.from_pandas(
+            self.folder.append("timing", pa.Table.from_pandas(
                 frame, schema=TIMING_SCHEMA, preserve_index=False))
 
 
@@ -303,10 +303,12 @@ class RunFolder:
     def partial_file(self, name: str) -> Path:
         return self.path / f"{name}.arrows"
 
-    def append(self, name: str, batch: pa.RecordBatch) -> None:
+    def append(self, name: str, batch: pa.RecordBatch | pa.Table) -> None:
         """Writes `batch` to the stream's file: with the operating system at once (unbuffered:
-        a killed process loses nothing of it), on the disk within `FSYNC_PERIOD`."""
-        self._writers[name].write_batch(batch)
+        a killed process loses nothing of it), on the disk within `FSYNC_PERIOD`. A table (a
+        pandas frame's: pandas 3 keeps strings as chunked Arrow arrays) is written batch by
+        batch."""
+        self._writers[name].write(batch)
         self.rows[name] += batch.num_rows
         self._appended.set()
 
