@@ -31,8 +31,9 @@ def run(scenario: Scenario, run_dir=None, meshcat=None, record=None,
         duration: float | None = None) -> RunLog:
     """Flies `scenario` (seeded by its `random_seed`) and writes its run folder (default
     runs/<time>-<command>-s<seed>). `odometry` replaces the scenario's estimator (tests, fault
-    injection); `prepare(root_context)` may change the seeded context; `duration` caps the
-    stack's own (a time limit, or the profile's length). Returns the run folder read back."""
+    injection); `prepare(root_context)` may change the seeded context; `duration` replaces the
+    stack's own (a time limit, or the profile's length; by default that, capped by the
+    scenario's `simulator.max_duration`). Returns the run folder read back."""
     builder = DiagramBuilder()
     stack = build(builder, scenario, meshcat, odometry)
     diagram = builder.Build()
