@@ -1,4 +1,4 @@
-"""One end of a MAVLink 2 link: a pymavlink transport, a background reader that parses every byte
+"""One end of a MAVLink link: a pymavlink transport, a background reader that parses every byte
 itself, counts what it must drop, and hands each valid message to the endpoint; a locked sender.
 
 Both ends of alight's link build on it: the companion computer's `MavlinkLink` (hw/link.py) and
@@ -14,6 +14,12 @@ known message, accepted by the end's `_accepts` (sender and target ids) and in s
 valid frame names the peer; another address takes over only after the peer has sent no valid
 frame for `peer_timeout` (a restarted client on a new port). Random bytes, bad frames and frames
 from other systems never move it (docs/hardware.md: what PX4 does).
+
+Both MAVLink versions are read; an end answers in its peer's version as PX4 does with its default
+MAV_PROTO_VER = 0 ("switch to 2 if 2 received"): a peer that has sent only MAVLink 1 frames gets
+MAVLink 1 frames, a peer that has sent one valid MAVLink 2 frame gets MAVLink 2 from then on (until
+another peer takes over). Before any valid frame an end speaks MAVLink 2. A message that MAVLink 1
+cannot carry (id above 255) is not sent to a MAVLink 1 peer, and counted (`unsendable_v1`).
 """
 import dataclasses as dc
 import errno
@@ -46,6 +52,8 @@ class LinkCounters:
     lost: int = 0
     sent: int = 0
     handler_errors: int = 0
+    messages_v1: int = 0     # valid frames that came as MAVLink 1
+    unsendable_v1: int = 0   # messages not sent: the peer speaks MAVLink 1, their id is > 255
 
 
 class _SequenceTracker:
@@ -88,6 +96,7 @@ class MavlinkEndpoint:
         self._listening = self._socket is not None and bool(getattr(transport, "udp_server",
                                                                     False))
         self.peer: tuple | None = None  # where a listening UDP end sends; None: nowhere yet
+        self.peer_version: int | None = None  # MAVLink version of the peer's frames; None: unheard
         self._peer_seen = -float("inf")  # time of the peer's last valid frame
         self._peer_timeout = peer_timeout
         self._send_lock = threading.Lock()
@@ -124,8 +133,13 @@ class MavlinkEndpoint:
 
     # --- sending ---------------------------------------------------------------------------
     def send(self, message) -> None:
+        """Sends `message` in the peer's MAVLink version (module docstring)."""
+        mavlink1 = self.peer_version == 1
         with self._send_lock:
-            self._encoder.send(message)
+            if mavlink1 and message.id > 255:
+                self.counters.unsendable_v1 += 1
+                return
+            self._encoder.send(message, force_mavlink1=mavlink1)
             self.counters.sent += 1
 
     @property
@@ -196,14 +210,18 @@ class MavlinkEndpoint:
             return
         in_order, lost = self._sequences.classify((header.srcSystem, header.srcComponent),
                                                   header.seq, now)
+        version = 1 if message.get_msgbuf()[0] == mavlink.PROTOCOL_MARKER_V1 else 2
         with self._counter_lock:
             counters.lost += lost
             if not in_order:
                 counters.out_of_order += 1
                 return
             counters.messages += 1
-        if self._listening and source is not None:
-            self._valid_frame_from(source, header, now)
+            counters.messages_v1 += version == 1
+        from_peer = self._valid_frame_from(source, header, now) \
+            if self._listening and source is not None else True
+        if from_peer and self.peer_version != 2:  # 1 until the peer speaks 2 (MAV_PROTO_VER 0)
+            self.peer_version = version
         try:
             if message.get_type() == "TIMESYNC":
                 self._timesync(message, now)
@@ -217,14 +235,19 @@ class MavlinkEndpoint:
             if first:
                 LOG.exception("MAVLink handler failed on %s", message.get_type())
 
-    def _valid_frame_from(self, source: tuple, header, now: float) -> None:
-        """The peer rule of a listening UDP end (module docstring)."""
+    def _valid_frame_from(self, source: tuple, header, now: float) -> bool:
+        """The peer rule of a listening UDP end (module docstring); True when `source` is (now)
+        the peer."""
         if source == self.peer:
             self._peer_seen = now
         elif self.peer is None or now - self._peer_seen > self._peer_timeout:
             self.peer, self._peer_seen = source, now
+            self.peer_version = None  # a new peer: its own frames tell its version
             LOG.info("MAVLink peer: %s:%d (system %d, component %d)", source[0], source[1],
                      header.srcSystem, header.srcComponent)
+        else:
+            return False
+        return True
 
     def _timesync(self, message, now: float) -> None:
         """Answers a TIMESYNC request (tc1 = 0) with this end's clock; passes replies on."""
