@@ -4,13 +4,14 @@
 import argparse
 import sys
 
-from alight.diagrams.cli import (campaign, fly, hil, hover, land, sim_autopilot, sysid,
-                                 thrust_curve, track, vio_eval)
+from alight.diagrams.cli import (campaign, export, fly, hil, hover, land, sim_autopilot,
+                                 sysid, thrust_curve, track, vio_eval)
 
-PARSERS = (hover, fly, sysid, sim_autopilot, track, thrust_curve, hil, land, campaign, vio_eval)
+PARSERS = (hover, fly, sysid, sim_autopilot, track, thrust_curve, hil, land, campaign, vio_eval,
+           export)
 COMMANDS = {command.NAME: command.HELP for command in (land, campaign, hover, fly, sysid,
                                                        sim_autopilot, hil, track, thrust_curve,
-                                                       vio_eval)}
+                                                       vio_eval, export)}
 
 
 def make_parser() -> argparse.ArgumentParser:
