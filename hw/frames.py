@@ -13,7 +13,7 @@ is its own inverse too. A heading eta (M(3)-(5), counter-clockwise from x_W) is 
 """
 import numpy as np
 
-from alight.systems.rotations import conjugate, quaternion_product
+from alight.systems.rotations import conjugate, quaternion_product, rotation_matrix
 
 # R_x(pi) exactly (pydrake's RotationMatrix.MakeXRotation(np.pi) differs by 1e-16; tests compare).
 X_HALF_TURN = np.diag([1.0, -1.0, -1.0])
@@ -53,3 +53,25 @@ def q_wb_to_nf(q_WB) -> np.ndarray:
 def ned_yaw_to_heading(yaw: float) -> float:
     """NED yaw (clockwise from north, seen from above) as the heading in W (counter-clockwise)."""
     return -float(yaw)
+
+
+def world_to_body_frd(v_W, q_WB) -> np.ndarray:
+    """A vector in W (a velocity, a relative position) in the body frame FRD (ODOMETRY's child
+    frame MAV_FRAME_BODY_FRD): v_F = X R_WB^T v_W."""
+    return b_to_frd(rotation_matrix(q_WB).T @ np.asarray(v_W, dtype=float))
+
+
+def body_frd_to_world(v_F, q_WB) -> np.ndarray:
+    """The inverse of `world_to_body_frd`."""
+    return rotation_matrix(q_WB) @ frd_to_b(v_F)
+
+
+def body_variances(var_W, q_WB) -> np.ndarray:
+    """Per-axis variances in W as per-axis variances in B (or FRD: the half turn keeps them): the
+    diagonal of R^T diag(var) R, the cross terms dropped as ODOMETRY's diagonal does."""
+    return (rotation_matrix(q_WB).T ** 2) @ np.asarray(var_W, dtype=float)
+
+
+def world_variances(var_B, q_WB) -> np.ndarray:
+    """The inverse of `body_variances`: the diagonal of R diag(var) R^T."""
+    return (rotation_matrix(q_WB) ** 2) @ np.asarray(var_B, dtype=float)

@@ -204,7 +204,6 @@ class CameraFrame:
 
 VECTOR_OUTPUTS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS}
 ABSTRACT_OUTPUTS = {"imu": ImuSamples, "rgbd": CameraFrame, "down_image": CameraFrame}
-INPUTS = {"fc_command": FC_COMMAND}
 SIM_ONLY_OUTPUTS = {"ground_truth": GROUND_TRUTH}
 
 
@@ -222,6 +221,11 @@ STATE_ESTIMATE = VectorLayout("state_estimate", [
     ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
     ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)],
     defaults={"q_EB": [1.0, 0.0, 0.0, 0.0], "q_OldNew": [1.0, 0.0, 0.0, 0.0], "valid": 1.0})
+
+
+# Inputs of the vehicle boundary: `fc_command`, and `odometry`, the onboard state estimate the
+# flight controller fuses as external vision (DESIGN.md "Vehicle boundary"; MAVLink ODOMETRY).
+INPUTS = {"fc_command": FC_COMMAND, "odometry": STATE_ESTIMATE}
 
 
 def estimate_is_valid(estimate: np.ndarray) -> bool:
