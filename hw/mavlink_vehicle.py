@@ -11,7 +11,11 @@ over MAVLink (hw/link.py), plus the hardware-only `link_status` diagnostics.
   flight controller's does. A rising arm flag starts OFFBOARD then ARM, a falling one DISARM
   (COMMAND_LONG, acknowledged, in a worker thread so the diagram never blocks);
 - `rgbd`, `down_image`: frames from a real camera (hw/opencv_camera.py) or from the local frame
-  channel of a simulated autopilot (hw/frame_channel.py), if any.
+  channel of a simulated autopilot (hw/frame_channel.py), if any;
+- `odometry`: the onboard state estimate sent to PX4 as external vision (ODOMETRY,
+  hw/external_vision.py) at `odometry_rate`, each new valid estimate once, stamped on the
+  autopilot's clock (TIMESYNC); its reset_counter counts the estimator's frame switches. Left
+  unconnected (a stack without a position estimate), nothing is sent.
 """
 import dataclasses as dc
 import math
@@ -25,13 +29,14 @@ from pydrake.systems.primitives import ConstantValueSource
 
 from alight.hw.channel_odometry import ChannelOdometryParams
 from alight.hw.endpoint import LOG
+from alight.hw.external_vision import estimator_type, odometry_message, quality
 from alight.hw.frame_channel import FrameSubscriber
 from alight.hw.link import CommandDenied, LinkParams, LinkTimeout, MavlinkLink
 from alight.models import model_path
 from alight.systems.autopilot.commander import CommanderParams, check_command
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, NO_COMMAND_STAMP,
-                                     ActiveMode, CameraFrame, CommandMode, ImuSamples, Refusal,
-                                     VectorLayout)
+                                     STATE_ESTIMATE, ActiveMode, CameraFrame, CommandMode,
+                                     ImuSamples, Refusal, VectorLayout)
 from alight.systems.params import bounded, load_params
 
 CAMERAS = ("rgbd", "down_image")
@@ -51,6 +56,13 @@ class MavlinkVehicleParams:
     camera_period: float = bounded(0.01, 0.001, 1.0, "s")
     # the frame channel's mocap, the odometry against a simulated autopilot (`alight hil`)
     channel_odometry: ChannelOdometryParams = dc.field(default_factory=ChannelOdometryParams)
+    # External vision out (ODOMETRY): PX4 wants 30-50 Hz; 0: not sent
+    odometry_rate: float = bounded(30.0, 0.0, 200.0, "Hz")
+    odometry_estimator: str = "vision"   # ODOMETRY estimator_type: vision or vio (PX4 fuses both)
+    odometry_worst_std: float = bounded(1.0, 0.01, 100.0, "m")  # quality 1 at this position std
+
+    def __post_init__(self):
+        estimator_type(self.odometry_estimator)  # a clear error for an unknown type
 
 
 def load_mavlink_vehicle_params(filename: str = "mavlink_vehicle.yaml") -> MavlinkVehicleParams:
@@ -279,6 +291,51 @@ class MavlinkTelemetry(LeafSystem):
         discrete_state.set_value(self._xd, np.concatenate([attitude, status, diagnostics]))
 
 
+def autopilot_time(link: MavlinkLink, t_local: float) -> float:
+    """An onboard time [s] on the autopilot's clock: the inverse of `link.to_local` (an affine
+    map); NaN until TIMESYNC locks."""
+    t0, t1 = link.to_local(0.0), link.to_local(1.0)
+    return (t_local - t0) / (t1 - t0)
+
+
+class MavlinkOdometrySender(LeafSystem):
+    """Input `odometry` STATE_ESTIMATE (may be unconnected: nothing is sent)
+    Every 1 / `odometry_rate`: a new valid estimate goes to the autopilot as ODOMETRY (external
+    vision), stamped on its clock; reset_counter is incremented when the estimate's
+    frame_counter changes (an estimator frame switch). `sent` counts the messages."""
+
+    def __init__(self, link: MavlinkLink, params: MavlinkVehicleParams):
+        super().__init__()
+        self._link, self._params = link, params
+        self._source = estimator_type(params.odometry_estimator)
+        self._odometry = self.DeclareVectorInputPort("odometry", STATE_ESTIMATE.size)
+        # last stamp sent, last frame_counter seen, reset_counter
+        self._xd = self.DeclareDiscreteState(np.array([-np.inf, np.nan, 0.0]))
+        if params.odometry_rate > 0:
+            self.DeclarePeriodicDiscreteUpdateEvent(1.0 / params.odometry_rate, 0.0,
+                                                    self._update)
+        self.sent = 0
+
+    def _update(self, context, discrete_state):
+        if not self._odometry.HasValue(context):
+            return
+        estimate = self._odometry.Eval(context)
+        last_stamp, last_frame, resets = context.get_discrete_state(self._xd).get_value()
+        stamp = STATE_ESTIMATE.get(estimate, "stamp")
+        valid = STATE_ESTIMATE.get(estimate, "valid") > 0.5 and np.all(np.isfinite(estimate))
+        t_fc = autopilot_time(self._link, stamp)
+        if not (valid and stamp > last_stamp and math.isfinite(t_fc)):
+            return
+        frame = STATE_ESTIMATE.get(estimate, "frame_counter")
+        if math.isfinite(last_frame) and frame != last_frame:
+            resets += 1
+        self._link.send(odometry_message(
+            self._link.mav, estimate, int(round(max(t_fc, 0.0) * 1e6)), int(resets),
+            self._source, quality(estimate, self._params.odometry_worst_std)))
+        self.sent += 1
+        discrete_state.set_value(self._xd, np.array([stamp, frame, resets]))
+
+
 class ChannelCamera(LeafSystem):
     """Output `<camera>` CameraFrame: the newest frame of `camera` from the frame channel, its
     stamp mapped from the autopilot's clock to ours."""
@@ -306,7 +363,7 @@ class ChannelCamera(LeafSystem):
 def make_mavlink_vehicle(link: MavlinkLink, params: MavlinkVehicleParams,
                          frames: FrameSubscriber | None = None,
                          cameras: dict[str, LeafSystem] | None = None) -> Diagram:
-    """The MAVLink vehicle diagram on an open link. Input `fc_command`; outputs `imu`,
+    """The MAVLink vehicle diagram on an open link. Inputs `fc_command`, `odometry`; outputs `imu`,
     `fc_attitude`, `fc_status`, `rgbd`, `down_image` and the hardware-only `link_status`.
     A camera port reads `cameras[name]` (a system with that one output, e.g. a real camera,
     hw/opencv_camera.py) if given, else the frame channel `frames`, else an empty frame."""
@@ -319,6 +376,8 @@ def make_mavlink_vehicle(link: MavlinkLink, params: MavlinkVehicleParams,
     builder.Connect(sender.GetOutputPort("command_status"),
                     telemetry.GetInputPort("command_status"))
     builder.ExportInput(sender.GetInputPort("fc_command"), "fc_command")
+    odometry = builder.AddNamedSystem("odometry_sender", MavlinkOdometrySender(link, params))
+    builder.ExportInput(odometry.GetInputPort("odometry"), "odometry")
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
     builder.ExportOutput(telemetry.GetOutputPort("fc_attitude"), "fc_attitude")
     builder.ExportOutput(telemetry.GetOutputPort("fc_status"), "fc_status")

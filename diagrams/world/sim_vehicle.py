@@ -23,6 +23,7 @@ from alight.systems.params import bounded, load_params, param_file
 from alight.systems.plant.drag import AerodynamicDrag
 from alight.systems.plant.hexacopter import (HexacopterParams, add_hexacopter, airframe,
                                              propeller_infos)
+from alight.systems.plant.motor_fault import MotorFault, MotorFaultParams
 from alight.systems.plant.motors import EscThrustMap, first_order_motors
 from alight.systems.plant.tether import Tether, TetherParams
 from alight.systems.plant.wind import Wind, WindParams
@@ -56,17 +57,23 @@ class SimVehicleConfig:
     target: TargetParams = dc.field(default_factory=TargetParams)  # profile none: no target
     rgbd_camera: RgbdCameraParams = dc.field(default_factory=RgbdCameraParams)  # the VIO camera
     tether: TetherParams = dc.field(default_factory=TetherParams)  # enabled false: none
+    motor_fault: MotorFaultParams = dc.field(default_factory=MotorFaultParams)  # loss 0: none
 
 
 def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleConfig:
     return load_params(SimVehicleConfig, model_path(filename))
 
 
-def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -> Diagram:
-    """The simulated vehicle diagram. Input `fc_command`; outputs `imu`, `fc_attitude`,
+def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
+                     autopilot_outputs: bool = False) -> Diagram:
+    """The simulated vehicle diagram. Inputs `fc_command` and `odometry` (the onboard estimate,
+    fused by the flight controller as PX4's EKF2 fuses external vision; unconnected: no external
+    vision); outputs `imu`, `fc_attitude`,
     `fc_status`, `rgbd` (the forward RGB-D camera of `config.rgbd_camera`, empty frames with source
     none), `down_image` (the downward camera of `config.down_camera`, empty frames with source
     none) and the simulation-only `ground_truth` (with the target of `config.target`, if any).
+    `autopilot_outputs` also exports the flight controller's `local_position` (its fused
+    estimate, never a boundary port: for the simulated PX4 of hw/sim_autopilot.py).
     Seed it with `Diagram.SetRandomContext`."""
     params = config.airframe
     builder = DiagramBuilder()
@@ -94,7 +101,12 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
         params.time_constant, n, config.time_step))
     propellers = builder.AddNamedSystem("propellers", Propeller(propeller_infos(plant, params)))
     builder.Connect(esc.get_output_port(), motors.get_input_port())
-    builder.Connect(motors.get_output_port(), propellers.get_command_input_port())
+    rotor_thrust = motors.get_output_port()
+    if config.motor_fault.active:
+        fault = builder.AddNamedSystem("motor_fault", MotorFault(n, config.motor_fault))
+        builder.Connect(rotor_thrust, fault.get_input_port())
+        rotor_thrust = fault.get_output_port()
+    builder.Connect(rotor_thrust, propellers.get_command_input_port())
     builder.Connect(plant.get_body_poses_output_port(), propellers.get_body_poses_input_port())
 
     # Wind and drag.
@@ -149,6 +161,7 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
                     fc.GetInputPort("vertical_velocity"))
     builder.Connect(fc.GetOutputPort("motor_command"), esc.GetInputPort("motor_command"))
     builder.Connect(fc.GetOutputPort("armed"), esc.GetInputPort("armed"))
+    builder.Connect(imu.GetOutputPort("imu"), fc.GetInputPort("imu"))
 
     target_state, down_image = add_target_systems(builder, plant, scene_graph, scene, body)
     truth = builder.AddNamedSystem("ground_truth", GroundTruth(n, target_state is not None))
@@ -161,13 +174,14 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
     builder.Connect(body_state, truth.GetInputPort("body_state"))
     builder.Connect(wind.GetOutputPort("wind"), truth.GetInputPort("wind"))
     builder.Connect(fc.GetOutputPort("motor_command"), truth.GetInputPort("motor_command"))
-    builder.Connect(motors.get_output_port(), truth.GetInputPort("rotor_thrust"))
+    builder.Connect(rotor_thrust, truth.GetInputPort("rotor_thrust"))
 
     if meshcat is not None:
         from alight.diagrams.world.visualization import add_meshcat_visualizer
         add_meshcat_visualizer(builder, scene_graph, meshcat)
 
     builder.ExportInput(fc.GetInputPort("fc_command"), "fc_command")
+    builder.ExportInput(fc.GetInputPort("odometry"), "odometry")
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
     builder.ExportOutput(estimate.GetOutputPort("fc_attitude"), "fc_attitude")
     builder.ExportOutput(fc.GetOutputPort("fc_status"), "fc_status")
@@ -175,6 +189,8 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None) -
                          "rgbd")
     builder.ExportOutput(down_image, "down_image")
     builder.ExportOutput(truth.GetOutputPort("ground_truth"), "ground_truth")
+    if autopilot_outputs:
+        builder.ExportOutput(fc.GetOutputPort("local_position"), "local_position")
     diagram = builder.Build()
     diagram.set_name("sim_vehicle")
     return diagram

@@ -3,6 +3,7 @@ import dataclasses as dc
 
 from alight.systems.autopilot.attitude_control import AttitudeControlParams
 from alight.systems.autopilot.commander import CommanderParams
+from alight.systems.autopilot.ev_fusion import ExternalVisionParams
 from alight.systems.autopilot.rate_control import RateControlParams
 from alight.systems.params import bounded
 
@@ -13,3 +14,5 @@ class FlightControllerParams:
     commander: CommanderParams = dc.field(default_factory=CommanderParams)
     attitude: AttitudeControlParams = dc.field(default_factory=AttitudeControlParams)
     rate: RateControlParams = dc.field(default_factory=RateControlParams)
+    # EKF2's external-vision fusion of the `odometry` input (PX4 EKF2_EV_* parameters)
+    external_vision: ExternalVisionParams = dc.field(default_factory=ExternalVisionParams)
