@@ -33,6 +33,8 @@ from alight.systems.mission.waypoints import WaypointMissionParams
 from alight.systems.params import (ConfigError, bounded, choice, load_params, param_file,
                                    validate)
 from alight.systems.perception.target_estimator import TargetEstimatorParams
+from alight.systems.sensors.command_faults import CommandFaultParams
+from alight.systems.sensors.estimate_faults import EstimateFaultParams
 from alight.systems.sensors.mocap import MocapParams
 from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.vio.estimator import VioParams
@@ -106,6 +108,16 @@ class SimulatorSettings:
 
 
 @dc.dataclass
+class Faults:
+    """Injected faults (simulation only; bench/faults.py, issue 21): a bad localization system
+    after the odometry (`estimate`: loss for a time, jump, noise) and a broken linear MPC
+    (`command`: NaN or out-of-range commands; the direct stacks `landing`, `waypoints`). The
+    vehicle's own faults are `vehicle.motor_fault`, the down camera's `camera_blackouts`."""
+    estimate: EstimateFaultParams = dc.field(default_factory=EstimateFaultParams)
+    command: CommandFaultParams = dc.field(default_factory=CommandFaultParams)
+
+
+@dc.dataclass
 class Scenario:
     """A run (models/scenario_*.yaml); see the module text."""
     name: str = "field"
@@ -113,6 +125,7 @@ class Scenario:
     vehicle: SimVehicleConfig = param_file(SimVehicleConfig, "sim_vehicle.yaml")
     target_motion: TargetMotion = dc.field(default_factory=TargetMotion)
     camera_blackouts: list[list[float]] = dc.field(default_factory=list)  # down camera [s]
+    faults: Faults = dc.field(default_factory=Faults)
     onboard: Onboard = dc.field(default_factory=Onboard)
     mission: LandingMissionParams | WaypointPlan | PilotProfile = dc.field(
         default_factory=LandingMissionParams)
@@ -143,6 +156,11 @@ STACK_MISSIONS = {"landing": LandingMissionParams, "landing_managed": LandingMis
                   "waypoints": WaypointPlan, "hover": PilotProfile}
 
 
+# The stacks whose linear MPC command `faults.command` can garble, and those on an estimate.
+COMMAND_FAULT_STACKS = {"landing", "waypoints"}
+ODOMETRY_STACKS = {"landing", "landing_managed", "waypoints"}
+
+
 def check_scenario(scenario: Scenario, where: str) -> None:
     """What the range checks cannot say: the stack flies the scenario's kind of mission, the
     estimator exists, the direct landing stack flies the linear MPC. ConfigError names `where`
@@ -158,6 +176,13 @@ def check_scenario(scenario: Scenario, where: str) -> None:
     if onboard.estimator != "vio":
         scenario_odometry(onboard.estimator, onboard.estimator_bank, onboard.linear_model,
                           where, others=("vio",), key="onboard.estimator")
+    if scenario.faults.command.active and onboard.stack not in COMMAND_FAULT_STACKS:
+        raise ConfigError(f"{where}: key 'faults.command': the '{onboard.stack}' stack (key "
+                          f"'onboard.stack') has no linear MPC command to inject it into (only "
+                          f"{sorted(COMMAND_FAULT_STACKS)})")
+    if scenario.faults.estimate.active and onboard.stack not in ODOMETRY_STACKS:
+        raise ConfigError(f"{where}: key 'faults.estimate': the '{onboard.stack}' stack (key "
+                          f"'onboard.stack') flies without a state estimate")
     if onboard.stack == "landing" and onboard.controller != "linear_mpc":
         raise ConfigError(f"{where}: key 'onboard.controller' = {onboard.controller!r}: the "
                           f"direct landing stack flies linear_mpc only (onboard.stack: "

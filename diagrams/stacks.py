@@ -13,6 +13,7 @@ from typing import Callable
 import numpy as np
 
 from alight.diagrams.onboard.estimation import scenario_odometry
+from alight.diagrams.onboard.faults import command_filter, faulty_odometry
 from alight.diagrams.onboard.landing import add_landing_onboard
 from alight.diagrams.onboard.landing_managed import add_landing_managed
 from alight.diagrams.onboard.mpc_loop import mocap_odometry
@@ -52,7 +53,8 @@ def _landing(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard = scenario.onboard
     parts = add_landing_onboard(builder, vehicle, scenario.mission, onboard.linear_mpc,
                                 onboard.linear_model, odometry, onboard.perception,
-                                onboard.failsafe_switch, scenario.camera_blackouts)
+                                onboard.failsafe_switch, scenario.camera_blackouts,
+                                command_filter(scenario.faults.command))
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,
                         parts.finished(scenario.scoring.settle_time), {"trackers": []}, parts)
 
@@ -71,7 +73,7 @@ def _waypoints(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard, waypoints = scenario.onboard, np.asarray(scenario.mission.waypoints, float)
     parts = add_waypoint_onboard(builder, vehicle, waypoints, scenario.mission.params, odometry,
                                  onboard.linear_mpc, onboard.linear_model,
-                                 onboard.failsafe_switch)
+                                 onboard.failsafe_switch, command_filter(scenario.faults.command))
     return OnboardStack(parts.loggers, mission_duration(waypoints,
                                                         scenario.simulator.max_duration),
                         parts.finished(rest=scenario.scoring.settle_time), {}, parts)
@@ -93,9 +95,11 @@ NEEDS_ODOMETRY = {"landing", "landing_managed", "waypoints"}
 def add_onboard(builder, scenario: Scenario, vehicle, odometry=None) -> OnboardStack:
     """The scenario's onboard stack on `vehicle`'s ports, flying on `odometry` (default: the
     scenario's estimator, `scenario_estimator`; the MAVLink side passes its own), with the
-    odometry's own streams logged when it has any (the VIO's, the bank's)."""
+    odometry's own streams logged when it has any (the VIO's, the bank's), and the scenario's
+    estimate faults after it (`faults.estimate`, simulation's fault injection)."""
     if odometry is None and scenario.onboard.stack in NEEDS_ODOMETRY:
         odometry = scenario_estimator(scenario)
+    odometry = faulty_odometry(odometry, scenario.faults.estimate)
     stack = STACKS[scenario.onboard.stack](builder, scenario, vehicle, odometry)
     if hasattr(odometry, "log"):
         odometry.log(builder, stack.loggers)

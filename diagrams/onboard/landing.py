@@ -70,15 +70,17 @@ def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: L
 def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
                         mpc_params: LinearMpcParams, model: LinearModelParams, odometry,
                         perception: TargetEstimatorParams, fallback: FailsafeSwitchParams,
-                        camera_blackouts=()) -> LandingOnboard:
+                        camera_blackouts=(), command_filter=None) -> LandingOnboard:
     """The onboard landing stack on `vehicle`'s boundary ports (the simulated or the MAVLink
     vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, `odometry` and
     the linear MPC with its `fallback` to the failsafe (`add_mpc_control`), target perception
-    `perception` on `down_image` (with `camera_blackouts`) and the run logging."""
+    `perception` on `down_image` (with `camera_blackouts`) and the run logging;
+    `command_filter` as in `add_mpc_control` (fault injection)."""
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
     loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
                            mission.GetOutputPort("arm"), odometry=odometry,
-                           mpc_params=mpc_params, model=model, fallback=fallback)
+                           mpc_params=mpc_params, model=model, fallback=fallback,
+                           command_filter=command_filter)
     ports = add_down_camera_perception(builder, vehicle, loop.state_estimate_port, perception,
                                        camera_blackouts)
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))

@@ -43,15 +43,15 @@ class WaypointOnboard:
 
 def add_waypoint_onboard(builder, vehicle, waypoints: np.ndarray,
                          mission: WaypointMissionParams, odometry, mpc_params: LinearMpcParams,
-                         model: LinearModelParams,
-                         fallback: FailsafeSwitchParams) -> WaypointOnboard:
+                         model: LinearModelParams, fallback: FailsafeSwitchParams,
+                         command_filter=None) -> WaypointOnboard:
     """The onboard side of a waypoint flight on `vehicle`'s boundary ports (simulated or
     MAVLink): the waypoint mission, `odometry` and the linear MPC with its `fallback` to the
-    failsafe (`add_mpc_control`), and their logging."""
+    failsafe (`add_mpc_control`, with `command_filter`: fault injection), and their logging."""
     mission_system = builder.AddNamedSystem("mission", WaypointMission(waypoints, mission))
     loop = add_mpc_control(builder, vehicle, mission_system.GetOutputPort("reference"),
                            mission_system.GetOutputPort("arm"), mpc_params, model, odometry,
-                           fallback)
+                           fallback, command_filter=command_filter)
     builder.Connect(loop.state_estimate_port, mission_system.GetInputPort("state_estimate"))
     loggers = add_mpc_logging(builder, loop, mission_system.GetOutputPort("reference"))
     return WaypointOnboard(mission_system, loop, loggers)

@@ -4,7 +4,8 @@ estimator noise (M Sec. 8.3, Fig. 12) and an estimator position jump (M Sec. 8.4
 From `noise_start` on, white Gaussian noise of standard deviation `noise_std` is added to the
 position [m] and to the velocity [m/s] of the STATE_ESTIMATE (and its variances grow to match);
 from `jump_time` on, the position is offset by `jump` [m] (a relocalization: the velocity is
-unchanged); with `loss`, from `loss_time` on, the estimate is lost (valid = 0). The noise comes
+unchanged); with `loss`, from `loss_time` on for `loss_duration`, the estimate is lost
+(valid = 0). The noise comes
 from a Drake `RandomSource`, so runs are reproducible from the seed.
 Not onboard code: it models a bad localization system.
 """
@@ -24,7 +25,8 @@ class EstimateFaultParams:
     jump: list[float] = bounded([0.0, 0.0, 0.0], -1e4, 1e4, "m")
     jump_time: float = bounded(0.0, 0.0, 1e6, "s")
     loss: bool = False                                   # the estimate is lost (valid = 0) ...
-    loss_time: float = bounded(0.0, 0.0, 1e6, "s")       # ... from this time on
+    loss_time: float = bounded(0.0, 0.0, 1e6, "s")       # ... from this time on ...
+    loss_duration: float = bounded(1e6, 0.0, 1e6, "s")   # ... for this long (default: for good)
 
     @property
     def active(self) -> bool:
@@ -55,6 +57,6 @@ class EstimateFaults(LeafSystem):
             estimate[L.slice("var_pv")] += self._p.noise_std ** 2
         if t >= self._p.jump_time:
             estimate[L.slice("p_EB")] += np.asarray(self._p.jump)
-        if self._p.loss and t >= self._p.loss_time:
+        if self._p.loss and 0.0 <= t - self._p.loss_time < self._p.loss_duration:
             estimate[L.slice("valid")] = 0.0
         output.SetFromVector(estimate)
