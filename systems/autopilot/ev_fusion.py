@@ -10,9 +10,9 @@ sample is fused where EKF2_EV_CTRL enables it (bit 0 horizontal position, 1 vert
 the sample is taken as measured EKF2_EV_DELAY before its stamp and brought to the filter's time
 with the estimated velocity; its noise is the reported variance floored at EKF2_EVP_NOISE /
 EKF2_EVV_NOISE (EKF2_EV_NOISE_MD 0) or the parameters alone (1); an innovation beyond
-EKF2_EVP_GATE / EKF2_EVV_GATE standard deviations is rejected; a sample below EKF2_EV_QMIN is
-ignored; a changed reset_counter resets the filter to the sample (the source changed frame); the
-first sample initialises it. The local position is valid while position was fused within
+EKF2_EVP_GATE / EKF2_EVV_GATE standard deviations is rejected; a sample of quality -1 (failed)
+is ignored; a changed reset_counter resets the filter to the sample (the source changed frame);
+the first sample initialises it. The local position is valid while position was fused within
 EKF2_NOAID_TOUT (EKF2 dead-reckons that long without aiding); samples that keep failing the gate
 for that long reset the filter to the source, as EKF2 does.
 """
@@ -38,7 +38,6 @@ class ExternalVisionParams:
     ev_ctrl: int = bounded(15, 0, 15)                   # EKF2_EV_CTRL bit mask; 0: no fusion
     ev_delay: float = bounded(0.0, 0.0, 0.3, "s")       # EKF2_EV_DELAY (PX4: ms)
     ev_noise_md: int = bounded(0, 0, 1)                 # EKF2_EV_NOISE_MD
-    ev_qmin: int = bounded(0, 0, 100)                   # EKF2_EV_QMIN
     evp_noise: float = bounded(0.1, 0.01, 10.0, "m")    # EKF2_EVP_NOISE
     evv_noise: float = bounded(0.1, 0.01, 10.0, "m/s")  # EKF2_EVV_NOISE
     evp_gate: float = bounded(5.0, 1.0, 10.0)           # EKF2_EVP_GATE [standard deviations]
@@ -139,7 +138,7 @@ class ExternalVisionFusion(LeafSystem):
     def _fuse(self, x, estimate, now):
         F, S, p = _FILTER, STATE_ESTIMATE, self._p
         if S.get(estimate, "valid") < 0.5:
-            return  # quality -1: failed (and below EKF2_EV_QMIN: see the receiver)
+            return  # quality -1: failed
         var = S.get(estimate, "var_pv")
         p_meas, v_meas = S.get(estimate, "p_EB"), S.get(estimate, "v_EB")
         age = max(0.0, F.get(x, "imu_t") - (S.get(estimate, "stamp") - p.ev_delay)) \
