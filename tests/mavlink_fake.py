@@ -36,6 +36,7 @@ class FakeAutopilot:
         self.answers: dict[int, list] = {}
         self.texts: dict[int, str] = {}
         self.setpoints: list[tuple[float, object]] = []
+        self.positions: list[tuple[float, object]] = []
         self.commands: list[tuple[float, object]] = []
         self.armed = False
         self.custom_mode = px4.HOLD
@@ -79,6 +80,9 @@ class FakeAutopilot:
         now = time.monotonic()
         if message.get_type() == "SET_ATTITUDE_TARGET":
             self.setpoints.append((now, message))
+            return
+        if message.get_type() in ("ODOMETRY", "LANDING_TARGET"):
+            self.positions.append((now, message))  # external vision, landing targets
             return
         self.commands.append((now, message))
         script = self.answers.get(message.command, [])
