@@ -1,7 +1,25 @@
-"""Meshcat: live view and self-contained HTML replays."""
+"""Meshcat: live view and self-contained HTML replays, framed on the flight.
+
+`add_meshcat_visualizer` draws the scene's illustration geometry. `add_flight_view` adds a
+`FlightView`: the view follows the vehicle and the car (the scene is shifted so that their
+midpoint stays in front of the camera, zoomed out as they part), their paths drawn as lines, the
+mission's mode as a label above the vehicle. Everything it sets is also recorded (Meshcat
+animations hold transforms and properties, not objects: the paths are drawn in one-second pieces
+shown from their end, the labels are textured planes made visible in turn), so a replay opens
+framed on the action as the live view does.
+"""
+import enum
+import tempfile
 from pathlib import Path
 
-from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role
+import cv2
+import numpy as np
+from pydrake.geometry import (Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Mesh, Rgba,
+                              Role)
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import GROUND_TRUTH, VectorLayout
 
 
 def add_meshcat_visualizer(builder, scene_graph, meshcat: Meshcat):
@@ -22,3 +40,140 @@ def write_recording(meshcat: Meshcat, filename: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(meshcat.StaticHtml())
     return path
+
+
+# Where the view's parts live in Meshcat's scene tree (under /drake, shifted with the scene).
+SCENE = "/drake"
+PATHS = "/drake/flight_view/paths"
+MODE = "/drake/flight_view/mode"
+ZOOM = "/Cameras/default/rotated/<object>"
+GRID = "/Grid"
+GRID_CELL = 1.0                                # m: the grid is moved by whole cells
+CAMERA_OFFSET = np.array([-9.0, -9.0, 6.0])    # m, from the framed point (behind-left, above)
+FIT = 12.0          # m: the vehicle-car distance the camera frames at zoom 1
+NEAR, FAR = 15.0, 30.0  # m: the car is framed with the vehicle from FAR in, fully from NEAR
+MIN_ZOOM = 0.3
+LABEL_HEIGHT = 0.9  # m above the vehicle
+COLORS = {"vehicle": Rgba(0.1, 0.3, 0.9, 1.0), "target": Rgba(0.9, 0.4, 0.0, 1.0)}
+
+
+def framing(p_WB: np.ndarray, p_WT: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """The framed point and the camera's zoom: the vehicle at zoom 1 while the car is absent or
+    more than FAR away; from NEAR in, their midpoint, zoomed out (to MIN_ZOOM at most) while they
+    are more than FIT apart; in between, a blend of the two."""
+    if p_WT is None:
+        return p_WB.copy(), 1.0
+    distance = float(np.linalg.norm(p_WB - p_WT))
+    weight = float(np.clip((FAR - distance) / (FAR - NEAR), 0.0, 1.0))
+    zoom = float(np.clip(FIT / max(weight * distance, 1e-9), MIN_ZOOM, 1.0))
+    return p_WB + weight * (p_WT - p_WB) / 2, zoom
+
+
+class FlightView(LeafSystem):
+    """Follows the flight in Meshcat (no outputs; publishes only, live and into a recording).
+
+    Input `ground_truth` (GROUND_TRUTH): the vehicle p_WB, the car p_WT when `target_present`.
+    Input `status` (`status_layout`): its field `mode_field` is the mode shown, named by `modes`.
+    Every `period` the scene (/drake) is shifted by minus the framed point and the camera zoomed
+    (`framing`); every `path_period` the paths get a point, a piece closing every `piece` s; the
+    label of the current mode is the one visible. What has been drawn (the open path pieces, the
+    mode shown) is kept by the system, as MeshcatVisualizer keeps what it has sent, not in the
+    context: it describes the browser's scene, not the simulation."""
+
+    def __init__(self, meshcat: Meshcat, status_layout: VectorLayout, mode_field: str,
+                 modes: type[enum.IntEnum], period: float = 1 / 30, path_period: float = 0.1,
+                 piece: float = 1.0):
+        super().__init__()
+        self._meshcat = meshcat
+        self._truth = self.DeclareVectorInputPort("ground_truth", GROUND_TRUTH.size)
+        self._status = self.DeclareVectorInputPort("status", status_layout.size)
+        self._status_layout, self._mode_field = status_layout, mode_field
+        self._modes = modes
+        self._piece_points = int(round(piece / path_period)) + 1
+        self.DeclareInitializationPublishEvent(self._start)
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._frame)
+        self.DeclarePeriodicPublishEvent(path_period, 0.0, self._extend_paths)
+        self._pieces: dict[str, list] = {}
+        self._mode = None
+        _draw_labels(meshcat, modes)
+
+    def _positions(self, context) -> tuple[np.ndarray, np.ndarray | None]:
+        truth = self._truth.Eval(context)
+        present = GROUND_TRUTH.get(truth, "target_present") > 0.5
+        return (GROUND_TRUTH.get(truth, "p_WB"),
+                GROUND_TRUTH.get(truth, "p_WT") if present else None)
+
+    def _start(self, context):
+        for name in self._modes.__members__:
+            self._meshcat.SetProperty(f"{MODE}/{name}", "visible", False, 0.0)
+        self._mode = None
+        self._pieces = {name: [0, []] for name in COLORS}
+        self._meshcat.Delete(PATHS)
+        self._meshcat.SetCameraPose(CAMERA_OFFSET, np.zeros(3))
+
+    def _frame(self, context):
+        t = context.get_time()
+        p_WB, p_WT = self._positions(context)
+        center, zoom = framing(p_WB, p_WT)
+        self._meshcat.SetTransform(SCENE, RigidTransform(-center), t)
+        grid = GRID_CELL * np.round(center / GRID_CELL)
+        grid[2] = 0.0
+        self._meshcat.SetTransform(GRID, RigidTransform(grid - center), t)
+        self._meshcat.SetProperty(ZOOM, "zoom", zoom, t)
+        self._meshcat.SetTransform(MODE, RigidTransform(p_WB + [0, 0, LABEL_HEIGHT]), t)
+        mode = self._modes(int(round(self._status_layout.get(self._status.Eval(context),
+                                                             self._mode_field))))
+        if mode != self._mode:
+            if self._mode is not None:
+                self._meshcat.SetProperty(f"{MODE}/{self._mode.name}", "visible", False, t)
+            self._meshcat.SetProperty(f"{MODE}/{mode.name}", "visible", True, t)
+            self._mode = mode
+
+    def _extend_paths(self, context):
+        t = context.get_time()
+        for name, p in zip(COLORS, self._positions(context)):
+            index, points = self._pieces[name]
+            if p is None:
+                continue
+            points.append(np.array(p))
+            path = f"{PATHS}/{name}/{index}"
+            if len(points) >= 2:
+                self._meshcat.SetLine(path, np.array(points).T, 3.0, COLORS[name])
+            if len(points) == self._piece_points:  # closed: shown in the replay from now on
+                self._meshcat.SetProperty(path, "visible", False, 0.0)
+                self._meshcat.SetProperty(path, "visible", True, t)
+                self._pieces[name] = [index + 1, [points[-1]]]
+
+
+def _draw_labels(meshcat: Meshcat, modes: type[enum.IntEnum]) -> None:
+    """One textured plane per mode under MODE, facing the camera, its name written on it."""
+    forward = -CAMERA_OFFSET / np.linalg.norm(CAMERA_OFFSET)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    with tempfile.TemporaryDirectory() as folder:
+        for mode in modes:
+            image = np.full((64, 512, 3), 255, np.uint8)
+            cv2.putText(image, mode.name, (12, 46), cv2.FONT_HERSHEY_SIMPLEX, 1.4, (0, 0, 0), 3,
+                        cv2.LINE_AA)
+            cv2.imwrite(str(Path(folder) / f"{mode.name}.png"), image)
+            corners = [s * 1.0 * right + u * 0.125 * up for s, u in
+                       ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+            (Path(folder) / f"{mode.name}.mtl").write_text(
+                f"newmtl label\nKa 1 1 1\nKd 1 1 1\nmap_Kd {mode.name}.png\n")
+            (Path(folder) / f"{mode.name}.obj").write_text(
+                f"mtllib {mode.name}.mtl\n"
+                + "".join(f"v {x:.4f} {y:.4f} {z:.4f}\n" for x, y, z in corners)
+                + "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl label\nf 1/1 2/2 3/3 4/4\n"
+                + "f 4/4 3/3 2/2 1/1\n")
+            meshcat.SetObject(f"{MODE}/{mode.name}", Mesh(str(Path(folder) / f"{mode.name}.obj")))
+
+
+def add_flight_view(builder, meshcat: Meshcat, ground_truth, status, status_layout: VectorLayout,
+                    mode_field: str, modes: type[enum.IntEnum]) -> FlightView:
+    """A FlightView on the `ground_truth` and `status` output ports."""
+    view = builder.AddNamedSystem("flight_view", FlightView(meshcat, status_layout, mode_field,
+                                                            modes))
+    builder.Connect(ground_truth, view.GetInputPort("ground_truth"))
+    builder.Connect(status, view.GetInputPort("status"))
+    return view
