@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from alight.hw.frames import (body_variances, body_frd_to_world, ned_to_w, q_nf_to_wb,
                               q_wb_to_nf, w_to_ned, world_to_body_frd, world_variances)
-from alight.systems.boundary import STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.boundary import STATE_ESTIMATE, TARGET_ESTIMATE, VectorLayout
 from alight.systems.rotations import heading, rotation_matrix
 
 ESTIMATOR_TYPES = {"vision": mavlink.MAV_ESTIMATOR_TYPE_VISION,
@@ -33,6 +33,11 @@ ESTIMATOR_TYPES = {"vision": mavlink.MAV_ESTIMATOR_TYPE_VISION,
 _VISION_FRAMES = (mavlink.MAV_FRAME_LOCAL_FRD, mavlink.MAV_FRAME_LOCAL_NED)
 _VISION_SOURCES = (mavlink.MAV_ESTIMATOR_TYPE_VISION, mavlink.MAV_ESTIMATOR_TYPE_VIO,
                    mavlink.MAV_ESTIMATOR_TYPE_UNKNOWN)
+# What a receiver of LANDING_TARGET logs (the simulated autopilot's run folder): the time it
+# arrived [s, autopilot clock], the message's time [s], the target position p_WT [m, W] and the
+# number received so far.
+LANDING_TARGET_RECEIVED = VectorLayout("landing_target", [
+    ("stamp", 1), ("time", 1), ("p_WT", 3), ("count", 1)])
 # Diagonal of the 6x6 covariance in its 21-element upper triangle: x, y, z, roll, pitch, yaw.
 DIAGONAL = (0, 6, 11, 15, 18, 20)
 
@@ -61,9 +66,10 @@ def _covariance(diagonal) -> list[float]:
 
 
 def odometry_message(mav, estimate: np.ndarray, time_usec: int, reset_counter: int,
-                     source: int, quality_value: int):
+                     source: int, quality_value: int, frame: int = mavlink.MAV_FRAME_LOCAL_FRD):
     """ODOMETRY of a STATE_ESTIMATE (position, orientation and velocity of B in E) stamped
-    `time_usec` on the autopilot's clock. Body rates are not estimated: NaN ("unknown")."""
+    `time_usec` on the autopilot's clock, the pose in `frame` (LOCAL_FRD for external vision;
+    PX4 sends its own in LOCAL_NED). Body rates are not estimated: NaN ("unknown")."""
     L = STATE_ESTIMATE
     q_EB = L.get(estimate, "q_EB")
     q_EB = q_EB / np.linalg.norm(q_EB)
@@ -75,7 +81,7 @@ def odometry_message(mav, estimate: np.ndarray, time_usec: int, reset_counter: i
     velocity_covariance = _covariance([*body_variances(var[3:], q_EB), math.nan, math.nan,
                                        math.nan])
     return mav.odometry_encode(
-        int(time_usec), mavlink.MAV_FRAME_LOCAL_FRD, mavlink.MAV_FRAME_BODY_FRD,
+        int(time_usec), frame, mavlink.MAV_FRAME_BODY_FRD,
         *[float(v) for v in p_N], [float(v) for v in q_wb_to_nf(q_EB)],
         *[float(v) for v in v_F], math.nan, math.nan, math.nan, pose_covariance,
         velocity_covariance, int(reset_counter) % 256, int(source), int(quality_value))

@@ -1,0 +1,281 @@
+"""External vision and landing target (issue 22): ODOMETRY and LANDING_TARGET as PX4 reads them,
+the simulated PX4's EKF2 emulation fusing external vision, its Hold / offboard-loss rules, and
+the MAVLink vehicle sending the onboard estimate."""
+import math
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import VectorLogSink
+from pymavlink.dialects.v20 import common as mavlink
+
+from alight.hw import px4
+from alight.hw.autopilot_rules import (ACCEPTED, TEMPORARILY_REJECTED, AutopilotRules,
+                                       FlightMode, Px4RulesParams)
+from alight.hw.external_vision import (decode_landing_target, decode_odometry,
+                                       landing_target_message, odometry_message, quality)
+from alight.hw.frames import ned_yaw_to_heading
+from alight.systems.autopilot.ev_fusion import (LOCAL_POSITION, ExternalVisionFusion,
+                                                ExternalVisionParams)
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_ESTIMATE,
+                                     TARGET_ESTIMATE, ActiveMode, ImuSamples)
+from alight.systems.rotations import heading_quaternion
+from alight.systems.thrust_curve import GRAVITY
+
+MAV = mavlink.MAVLink(None)
+
+
+def over_the_wire(message):
+    [parsed] = mavlink.MAVLink(None).parse_buffer(message.pack(MAV))
+    return parsed
+
+
+def estimate(**fields):
+    values = dict(stamp=2.5, p_EB=[1.0, 2.0, 3.0], v_EB=[0.5, -0.2, 0.1],
+                  q_EB=heading_quaternion(0.7), var_pv=[1e-4] * 3 + [4e-4] * 3,
+                  var_heading=1e-3, frame_counter=2)
+    values.update(fields)
+    return STATE_ESTIMATE.vector(**values)
+
+
+def test_odometry_is_external_vision_in_frd_and_round_trips():
+    sent = estimate()
+    message = over_the_wire(odometry_message(MAV, sent, 2_500_000, 7,
+                                             mavlink.MAV_ESTIMATOR_TYPE_VIO, quality(sent, 1.0)))
+    assert (message.frame_id, message.child_frame_id) == (mavlink.MAV_FRAME_LOCAL_FRD,
+                                                          mavlink.MAV_FRAME_BODY_FRD)
+    assert (message.reset_counter, message.estimator_type) == (7, mavlink.MAV_ESTIMATOR_TYPE_VIO)
+    assert message.quality == 99  # 1 cm std of a worst 1 m
+    # z up 3 m is z down -3 m; heading 0.7 rad counter-clockwise is a NED yaw of -0.7 rad
+    assert [message.x, message.y, message.z] == pytest.approx([1.0, -2.0, -3.0])
+    yaw = 2 * math.atan2(message.q[3], message.q[0])
+    assert ned_yaw_to_heading(yaw) == pytest.approx(0.7, abs=1e-6)
+    # The body-frame velocity: forward speed of the world velocity seen at heading 0.7
+    forward = 0.5 * math.cos(0.7) - 0.2 * math.sin(0.7)
+    assert message.vx == pytest.approx(forward, abs=1e-6)
+    assert [message.pose_covariance[i] for i in (0, 6, 11, 20)] == pytest.approx(
+        [1e-4, 1e-4, 1e-4, 1e-3])
+    received = decode_odometry(message)
+    for field in ("p_EB", "v_EB", "q_EB", "var_pv"):
+        np.testing.assert_allclose(STATE_ESTIMATE.get(received, field),
+                                   STATE_ESTIMATE.get(sent, field), rtol=1e-6, atol=1e-6)
+    assert STATE_ESTIMATE.get(received, "stamp") == 2.5
+    assert STATE_ESTIMATE.get(received, "frame_counter") == 7
+    assert STATE_ESTIMATE.get(received, "valid") == 1.0
+
+
+def test_what_px4_would_not_fuse_is_refused_and_a_failed_estimate_is_invalid():
+    good = odometry_message(MAV, estimate(), 1, 0, mavlink.MAV_ESTIMATOR_TYPE_VISION, 50)
+    mocap = odometry_message(MAV, estimate(), 1, 0, mavlink.MAV_ESTIMATOR_TYPE_MOCAP, 50)
+    body = odometry_message(MAV, estimate(), 1, 0, mavlink.MAV_ESTIMATOR_TYPE_VISION, 50,
+                            frame=mavlink.MAV_FRAME_BODY_FRD)
+    assert decode_odometry(over_the_wire(good)) is not None
+    assert decode_odometry(over_the_wire(mocap)) is None  # PX4: the mocap topic, not EKF2's
+    assert decode_odometry(over_the_wire(body)) is None   # PX4: frame not supported
+    failed = estimate(valid=0.0)
+    assert quality(failed, 1.0) == -1
+    message = odometry_message(MAV, failed, 1, 0, mavlink.MAV_ESTIMATOR_TYPE_VISION, -1)
+    assert STATE_ESTIMATE.get(decode_odometry(over_the_wire(message)), "valid") == 0.0
+    assert quality(estimate(var_pv=[0.25] * 6), 1.0) == 50
+
+
+def test_landing_target_is_local_ned_with_a_valid_position():
+    target = TARGET_ESTIMATE.vector(p_WT=[4.0, 1.0, 0.5], q_WT=heading_quaternion(0.3), valid=1)
+    vehicle = estimate(p_EB=[4.0, 1.0, 2.5], q_EB=[1.0, 0.0, 0.0, 0.0])
+    message = over_the_wire(landing_target_message(MAV, target, vehicle, 123))
+    assert (message.frame, message.position_valid) == (mavlink.MAV_FRAME_LOCAL_NED, 1)
+    assert [message.x, message.y, message.z] == pytest.approx([4.0, -1.0, -0.5])
+    assert message.distance == pytest.approx(2.0)  # straight below
+    assert (message.angle_x, message.angle_y) == pytest.approx((0.0, 0.0), abs=1e-9)
+    np.testing.assert_allclose(decode_landing_target(message), [4.0, 1.0, 0.5], atol=1e-6)
+
+
+# --- EKF2 emulation ---------------------------------------------------------------------------
+
+def truth(t):
+    """A climbing, swaying path [m] with its velocity and acceleration."""
+    p = np.array([0.5 * t, math.sin(t), 1.0 + 0.2 * t])
+    v = np.array([0.5, math.cos(t), 0.2])
+    a = np.array([0.0, -math.sin(t), 0.0])
+    return p, v, a
+
+
+class Source(LeafSystem):
+    """Level IMU samples at 200 Hz measuring `truth`, and odometry at 30 Hz: truth plus noise
+    (std `noise`), 20 ms old, with `events(t)` -> dict of overrides (a frame jump, a stop)."""
+
+    def __init__(self, noise, events):
+        super().__init__()
+        self._noise, self._events = noise, events
+        self._rng = np.random.default_rng(4)
+        self._imu = self.DeclareAbstractState(AbstractValue.Make(ImuSamples.empty()))
+        self._odometry = self.DeclareDiscreteState(STATE_ESTIMATE.vector(valid=0.0))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(0.005, 0.0, self._sample)
+        self.DeclarePeriodicDiscreteUpdateEvent(1 / 30, 0.0, self._measure)
+        self.DeclareStateOutputPort("imu", self._imu)
+        self.DeclareStateOutputPort("odometry", self._odometry)
+        self.count = 0
+
+    def _sample(self, context, state):
+        t = context.get_time()
+        samples = context.get_abstract_state(self._imu).get_value()
+        f_B = truth(t)[2] + [0.0, 0.0, GRAVITY]
+        state.get_mutable_abstract_state(self._imu).set_value(
+            samples.appended(self.count, t, f_B, np.zeros(3), 50))
+        self.count += 1
+
+    def _measure(self, context, discrete_state):
+        t = context.get_time()
+        events = self._events(t)
+        if events.get("stopped"):
+            return
+        p, v, _ = truth(t - 0.02)
+        p = p + events.get("offset", 0.0) + self._rng.normal(0, self._noise, 3)
+        discrete_state.set_value(STATE_ESTIMATE.vector(
+            stamp=t - 0.02, p_EB=p, v_EB=v, var_pv=[self._noise ** 2] * 3 + [0.01] * 3,
+            frame_counter=events.get("frame", 0)))
+
+
+def fuse(duration, events=lambda t: {}, params=None, noise=0.05):
+    builder = DiagramBuilder()
+    source = builder.AddSystem(Source(noise, events))
+    fusion = builder.AddSystem(ExternalVisionFusion(params or ExternalVisionParams(
+        ev_delay=0.02, noaid_tout=1.0)))
+    level = builder.AddSystem(_Constant(FC_ATTITUDE.pack(stamp=0, q_WB=[1, 0, 0, 0],
+                                                         w_B=np.zeros(3))))
+    builder.Connect(source.GetOutputPort("imu"), fusion.GetInputPort("imu"))
+    builder.Connect(source.GetOutputPort("odometry"), fusion.GetInputPort("odometry"))
+    builder.Connect(level.get_output_port(), fusion.GetInputPort("fc_attitude"))
+    log = builder.AddSystem(VectorLogSink(LOCAL_POSITION.size, 0.01))
+    builder.Connect(fusion.GetOutputPort("local_position"), log.get_input_port())
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(duration)
+    data = log.FindLog(simulator.get_context()).data()
+    return {name: data[LOCAL_POSITION.slice(name)].T.squeeze()
+            for name, _ in LOCAL_POSITION.fields}
+
+
+class _Constant(LeafSystem):
+    def __init__(self, value):
+        super().__init__()
+        self.DeclareVectorOutputPort("y", len(value), lambda c, o: o.SetFromVector(value))
+
+
+def test_fusion_follows_the_vision_within_its_noise_and_below_it():
+    out = fuse(8.0)
+    t = out["stamp"]
+    steady = t > 1.0
+    error = out["p_WB"][steady] - np.array([truth(s)[0] for s in t[steady]])
+    rms = np.sqrt(np.mean(error ** 2, axis=0))
+    assert np.all(rms < 0.05)  # filtered: below the 5 cm noise of each sample
+    v_error = out["v_WB"][steady] - np.array([truth(s)[1] for s in t[steady]])
+    assert np.all(np.sqrt(np.mean(v_error ** 2, axis=0)) < 0.05)
+    assert np.all(out["valid"][steady] == 1.0)
+    assert np.all(np.sqrt(out["var_p"][steady]) < 0.06)
+    assert out["reset_counter"][-1] == 0 and out["rejected"][-1] == 0
+
+
+def test_fusion_resets_on_a_frame_switch_gates_a_jump_and_times_out_without_vision():
+    def events(t):
+        if 2.0 <= t < 3.0:
+            return {"offset": np.array([3.0, 0.0, 0.0])}  # a jump, same frame: gated
+        if 3.0 <= t < 5.0:
+            return {"offset": np.array([10.0, 0.0, 0.0]), "frame": 1}  # a new frame
+        return {"stopped": True} if t >= 5.0 else {}
+    out = fuse(7.0, events)
+    t, x = out["stamp"], out["p_WB"][:, 0]
+    jump = (t > 2.1) & (t < 2.9)
+    assert np.all(np.abs(x[jump] - 0.5 * t[jump]) < 0.15)  # not pulled by the jump
+    assert 24 <= out["rejected"][np.searchsorted(t, 2.9)] <= 27  # x only: 30 Hz for 0.9 s
+    switched = (t > 3.1) & (t < 4.9)
+    assert np.all(np.abs(x[switched] - (0.5 * t[switched] + 10.0)) < 0.15)
+    assert out["reset_counter"][-1] == 1
+    # Vision stops at 5 s: dead reckoning stays valid EKF2_NOAID_TOUT (1 s here), then not
+    assert np.all(out["valid"][(t > 3.1) & (t < 5.9)] == 1.0)
+    assert np.all(out["valid"][t > 6.1] == 0.0)
+
+
+def test_no_vision_source_no_local_position():
+    out = fuse(1.0, params=ExternalVisionParams(ev_ctrl=0))
+    assert not np.any(out["valid"])
+
+
+# --- PX4 rules --------------------------------------------------------------------------------
+
+HOVER = 0.637
+
+
+def status(armed=True, landed=False, mode=ActiveMode.ATTITUDE_THRUST):
+    return FC_STATUS.vector(armed=float(armed), landed=float(landed), mode=mode)
+
+
+LEVEL = FC_ATTITUDE.pack(stamp=0.0, q_WB=heading_quaternion(0.4), w_B=np.zeros(3))
+
+
+def position(p=(1.0, 2.0, 3.0), v=(0.0, 0.0, 0.0), valid=True):
+    return LOCAL_POSITION.vector(p_WB=p, v_WB=v, valid=float(valid))
+
+
+def offboard(rules, now=0.0):
+    target = MAV.set_attitude_target_encode(0, 1, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.1)
+    assert rules.setpoint_received(target, now)
+    assert rules.command(mavlink.MAV_CMD_DO_SET_MODE,
+                         [1, px4.MainMode.OFFBOARD, 0, 0], now, status()).result == ACCEPTED
+
+
+def test_hold_in_the_air_needs_a_position_and_holds_it():
+    rules = AutopilotRules(0.5, 0.15, HOVER, 0.004)
+    rules.fc_command(0.0, status(), LEVEL, position(valid=False))
+    hold = [1, px4.MainMode.AUTO, px4.AutoSubMode.LOITER, 0]
+    answer = rules.command(mavlink.MAV_CMD_DO_SET_MODE, hold, 0.0, status())
+    assert answer.result == TEMPORARILY_REJECTED and "no position estimate" in answer.text
+    rules.fc_command(0.01, status(), LEVEL, position())
+    assert rules.command(mavlink.MAV_CMD_DO_SET_MODE, hold, 0.01, status()).result == ACCEPTED
+    # At the held point, at rest: level at the held heading, hover thrust, stamped now
+    command = rules.fc_command(0.02, status(), LEVEL, position())
+    assert FC_COMMAND.get(command, "stamp") == 0.02
+    assert FC_COMMAND.get(command, "thrust") == pytest.approx(HOVER, abs=1e-3)
+    np.testing.assert_allclose(FC_COMMAND.get(command, "q_WD"), heading_quaternion(0.4),
+                               atol=1e-6)
+    # Below the held point: more thrust; east of it (+y in W): leaning back to -y (roll right)
+    below = rules.fc_command(0.03, status(), LEVEL, position(p=(1.0, 2.0, 2.5)))
+    assert FC_COMMAND.get(below, "thrust") > HOVER + 0.05
+    east = rules.fc_command(0.04, status(), LEVEL, position(p=(1.0, 2.5, 3.0)))
+    q = FC_COMMAND.get(east, "q_WD")
+    z_D_y = 2 * (q[2] * q[3] - q[0] * q[1])  # y component of the desired body z axis
+    assert z_D_y < -0.05
+    # The position lost while holding: AUTO.LAND, said so
+    rules.fc_command(0.05, status(), LEVEL, position(valid=False))
+    assert rules.mode == FlightMode.LAND and "landing" in rules.notices[-1]
+
+
+@pytest.mark.parametrize("valid, action, expected", [
+    (True, 0, FlightMode.POSITION), (True, 5, FlightMode.HOLD), (True, 4, FlightMode.LAND),
+    (False, 0, FlightMode.LAND), (False, 5, FlightMode.LAND)])
+def test_offboard_loss_holds_with_a_position_and_lands_without(valid, action, expected):
+    rules = AutopilotRules(0.5, 0.15, HOVER, 0.004, Px4RulesParams(com_obl_rc_act=action))
+    offboard(rules)
+    stamp = FC_COMMAND.get(rules.fc_command(0.48, status(), LEVEL, position(valid=valid)),
+                           "stamp")
+    assert rules.mode == FlightMode.OFFBOARD and stamp == 0.0  # the setpoint, forwarded
+    command = rules.fc_command(0.495, status(), LEVEL, position(valid=valid))
+    assert rules.mode == expected  # before the flight controller's own 0.5 s timeout
+    if expected != FlightMode.LAND:  # held: fresh commands, the FC's link stays alive
+        assert FC_COMMAND.get(command, "stamp") == 0.495
+    else:
+        assert FC_COMMAND.get(command, "stamp") == 0.0  # nothing new: the FC descends
+
+
+def test_offboard_loss_on_the_ground_falls_back_to_hold():
+    rules = AutopilotRules(0.5, 0.15, HOVER, 0.004)
+    offboard(rules)
+    rules.fc_command(1.0, status(armed=False, landed=True), LEVEL, position(valid=False))
+    assert rules.mode == FlightMode.HOLD
+
+
+def test_an_unemulated_offboard_loss_action_is_a_clear_error():
+    with pytest.raises(ValueError, match="COM_OBL_RC_ACT 3"):
+        Px4RulesParams(com_obl_rc_act=3)
