@@ -10,6 +10,11 @@ MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_LAND, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQ
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py. Camera
 frames and the simulated world's mocap estimate (the `mocap` sensor model of DESIGN.md: true pose
 plus noise and latency) go to the onboard side over the local frame channel (hw/frame_channel.py).
+External vision (ODOMETRY, as PX4's receiver filters it, hw/external_vision.py) goes to the
+simulated flight controller's `odometry` input, whose EKF2 emulation (systems/autopilot/ev_fusion.py)
+makes the local position sent as LOCAL_POSITION_NED and ODOMETRY (PX4's own, MAV_FRAME_LOCAL_NED)
+and held by Hold, Position and the offboard-loss failsafe; LANDING_TARGET messages PX4 would use
+are logged in the run folder (`landing_target`), with the local position (`local_position`).
 The world is the vehicle config's: with a landing scenario's (diagrams/scenario.py
 `vehicle_config`), the moving target, the down camera and the wind.
 """
@@ -34,22 +39,26 @@ from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import add_run_logging, open_run_folder, write_run_folder
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.world.visualization import start_recording, write_recording
-from alight.hw.autopilot_rules import ACCEPTED, UNSUPPORTED, Answer, AutopilotRules
+from alight.hw.autopilot_rules import (ACCEPTED, UNSUPPORTED, Answer, AutopilotRules,
+                                      Px4RulesParams)
 from alight.hw.connection import open_connection
 from alight.hw.endpoint import LOG, MavlinkEndpoint, addressed_to
+from alight.hw.external_vision import (LANDING_TARGET_RECEIVED, decode_landing_target,
+                                      decode_odometry, odometry_message)
 from alight.hw.frame_channel import EstimateSample, FramePublisher
-from alight.hw.frames import b_to_frd, q_wb_to_nf
+from alight.hw.frames import b_to_frd, q_wb_to_nf, w_to_ned
 from alight.hw.link import MILLI_G
 from alight.models import model_path
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_ESTIMATE,
                                      ActiveMode, CameraFrame, ImuSamples)
+from alight.systems.autopilot.ev_fusion import LOCAL_POSITION
 from alight.systems.params import bounded, load_params
 from alight.systems.sensors.mocap import MocapParams
 
 # Telemetry streams and their default rates [Hz] (PX4's "onboard" MAVLink mode, roughly).
 STREAMS = {
     "HIGHRES_IMU": 50.0, "SCALED_IMU": 0.0, "ATTITUDE_QUATERNION": 50.0, "ATTITUDE": 50.0,
-    "EXTENDED_SYS_STATE": 5.0, "SYS_STATUS": 1.0,
+    "EXTENDED_SYS_STATE": 5.0, "SYS_STATUS": 1.0, "LOCAL_POSITION_NED": 30.0, "ODOMETRY": 30.0,
 }
 _STREAM_IDS = {mavlink.mavlink_map[i].msgname: i for i in mavlink.mavlink_map
                if mavlink.mavlink_map[i].msgname in STREAMS}
@@ -75,6 +84,11 @@ class SimAutopilotParams:
     attitude_rate: float = bounded(STREAMS["ATTITUDE"], 0.0, 1000.0, "Hz")
     extended_sys_state_rate: float = bounded(STREAMS["EXTENDED_SYS_STATE"], 0.0, 100.0, "Hz")
     sys_status_rate: float = bounded(STREAMS["SYS_STATUS"], 0.0, 100.0, "Hz")
+    # the local position (sent only while valid, as PX4)
+    local_position_ned_rate: float = bounded(STREAMS["LOCAL_POSITION_NED"], 0.0, 1000.0, "Hz")
+    odometry_rate: float = bounded(STREAMS["ODOMETRY"], 0.0, 1000.0, "Hz")
+    # PX4 commander/position-control parameters of the rules (COM_OBL_RC_ACT, MPC_*)
+    rules: Px4RulesParams = dc.field(default_factory=Px4RulesParams)
 
     def default_rates(self) -> dict[str, float]:
         return {name: getattr(self, f"{name.lower()}_rate") for name in STREAMS}
@@ -177,6 +191,8 @@ class AutopilotEndpoint(MavlinkEndpoint):
         elif kind == "SET_ATTITUDE_TARGET":
             self.statistics.setpoint_arrived(message, now)
             self.inbox.put(message)
+        elif kind in ("ODOMETRY", "LANDING_TARGET"):
+            self.inbox.put(message)
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             self.inbox.put(message)
         return True
@@ -206,6 +222,15 @@ class AutopilotBridge(LeafSystem):
         self._cameras = {name: self.DeclareAbstractInputPort(
             name, AbstractValue.Make(CameraFrame())) for name in ("rgbd", "down_image")}
         self._mocap = self.DeclareVectorInputPort("mocap", STATE_ESTIMATE.size)
+        self._local_position = self.DeclareVectorInputPort("local_position",
+                                                           LOCAL_POSITION.size)
+        # External vision received (W, autopilot clock) for the FC; LANDING_TARGETs PX4 uses.
+        self._odometry = self.DeclareDiscreteState(STATE_ESTIMATE.vector(valid=0.0))
+        self.DeclareStateOutputPort("odometry", self._odometry)
+        self._landing_target = self.DeclareDiscreteState(
+            LANDING_TARGET_RECEIVED.vector(stamp=-1.0, time=-1.0))
+        self.DeclareStateOutputPort("landing_target", self._landing_target)
+        self._received: dict[str, np.ndarray] = {}
         initial = FC_COMMAND.pack(stamp=0.0, mode=1, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
                                   thrust=0.0, arm=0.0)
         self._command = self.DeclareDiscreteState(initial)
@@ -233,8 +258,13 @@ class AutopilotBridge(LeafSystem):
             status = self._status.Eval(context)
             if received:
                 self._handle_inbox(now, status)
+                self._store_received(context, discrete_state, now)
             discrete_state.set_value(self._command, self._rules.fc_command(
-                now, status, self._attitude.Eval(context)))
+                now, status, self._attitude.Eval(context), self._local_position.Eval(context)))
+            for text in self._rules.notices:  # the failsafe actions, told as PX4 tells them
+                self._endpoint.send(self._endpoint.mav.statustext_encode(
+                    mavlink.MAV_SEVERITY_CRITICAL, text.encode()[:50]))
+            self._rules.notices.clear()
             if self._rules.heartbeat(status) != self._last_heartbeat:
                 self._next_heartbeat = now  # armed or mode changed: tell the client at once
             self._next_command = now + self._command_period - 1e-9
@@ -257,6 +287,14 @@ class AutopilotBridge(LeafSystem):
                 if not self._rules.setpoint_received(message, now):
                     endpoint.count_rejected()
                 continue
+            if message.get_type() in ("ODOMETRY", "LANDING_TARGET"):
+                decoded = (decode_odometry if message.get_type() == "ODOMETRY"
+                           else decode_landing_target)(message)
+                if decoded is None:  # PX4 would not use it (frame, source)
+                    endpoint.count_rejected()
+                else:
+                    self._received[message.get_type()] = (decoded, message)
+                continue
             params = [message.param1, message.param2, message.param3, message.param4]
             if message.get_type() == "COMMAND_LONG":
                 params += [message.param5, message.param6, message.param7]
@@ -268,6 +306,18 @@ class AutopilotBridge(LeafSystem):
                 endpoint.send(mav.statustext_encode(severity, answer.text.encode()[:50]))
             endpoint.send(mav.command_ack_encode(message.command, answer.result, 0, 0,
                                                  header.srcSystem, header.srcComponent))
+
+    def _store_received(self, context, discrete_state, now):
+        """The newest external vision and landing target of this tick into state."""
+        if "ODOMETRY" in self._received:
+            discrete_state.set_value(self._odometry, self._received["ODOMETRY"][0])
+        if "LANDING_TARGET" in self._received:
+            p_WT, message = self._received["LANDING_TARGET"]
+            count = LANDING_TARGET_RECEIVED.get(
+                context.get_discrete_state(self._landing_target).get_value(), "count")
+            discrete_state.set_value(self._landing_target, LANDING_TARGET_RECEIVED.vector(
+                stamp=now, time=message.time_usec * 1e-6, p_WT=p_WT, count=count + 1))
+        self._received.clear()
 
     def _command_answer(self, command, params, now, status):
         if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
@@ -342,10 +392,37 @@ class AutopilotBridge(LeafSystem):
                 message = mav.sys_status_encode(sensors, sensors, sensors, 0, 65535, -1, -1,
                                                 0, 0, 0, 0, 0, 0)
             endpoint.send(message)
+        for name in ("LOCAL_POSITION_NED", "ODOMETRY"):
+            if self._due(name, now):
+                self._send_local_position(name, context)
         if "AUTOPILOT_VERSION" in self._one_shots:
             endpoint.send(mav.autopilot_version_encode(_CAPABILITIES, 0, 0, 0, 0, [0] * 8,
                                                        [0] * 8, [0] * 8, 0, 0, 0))
         self._one_shots.clear()
+
+    def _send_local_position(self, name: str, context):
+        """PX4's vehicle_local_position as LOCAL_POSITION_NED or ODOMETRY (LOCAL_NED), only
+        while it is valid."""
+        position = self._local_position.Eval(context)
+        if LOCAL_POSITION.get(position, "valid") < 0.5:
+            return
+        mav, L = self._endpoint.mav, LOCAL_POSITION
+        stamp = L.get(position, "stamp")
+        if name == "LOCAL_POSITION_NED":
+            message = mav.local_position_ned_encode(
+                int(stamp * 1e3), *[float(v) for v in w_to_ned(L.get(position, "p_WB"))],
+                *[float(v) for v in w_to_ned(L.get(position, "v_WB"))])
+        else:
+            attitude = self._attitude.Eval(context)
+            estimate = STATE_ESTIMATE.vector(
+                stamp=stamp, p_EB=L.get(position, "p_WB"), v_EB=L.get(position, "v_WB"),
+                q_EB=FC_ATTITUDE.get(attitude, "q_WB"),
+                var_pv=np.concatenate([L.get(position, "var_p"), L.get(position, "var_v")]))
+            message = odometry_message(mav, estimate, int(stamp * 1e6),
+                                       int(L.get(position, "reset_counter")),
+                                       mavlink.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100,
+                                       frame=mavlink.MAV_FRAME_LOCAL_NED)
+        self._endpoint.send(message)
 
     def _due(self, name: str, now: float) -> bool:
         interval = self._intervals[name]
@@ -415,9 +492,12 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
     world's mocap system (`mocap`, as the simulation's `mocap_odometry`) feeding the frame
     channel; returns (diagram, run loggers)."""
     builder = DiagramBuilder()
-    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
+    vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat,
+                                                                 autopilot_outputs=True))
     commander = vehicle_config.flight_controller.commander
-    rules = AutopilotRules(commander.stale_timeout, commander.max_arm_thrust)
+    rules = AutopilotRules(commander.stale_timeout, commander.max_arm_thrust,
+                           commander.hover_thrust, vehicle_config.flight_controller.period,
+                           params.rules)
     bridge = builder.AddNamedSystem("autopilot_bridge", AutopilotBridge(
         endpoint, params, rules, vehicle_config.flight_controller.period,
         vehicle_config.imu.period, frames))
@@ -426,7 +506,14 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
     builder.Connect(add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap),
                     bridge.GetInputPort("mocap"))
     builder.Connect(bridge.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    builder.Connect(bridge.GetOutputPort("odometry"), vehicle.GetInputPort("odometry"))
+    builder.Connect(vehicle.GetOutputPort("local_position"),
+                    bridge.GetInputPort("local_position"))
     loggers = add_run_logging(builder, vehicle, bridge.GetOutputPort("fc_command"))
+    loggers.add(builder, "local_position", vehicle.GetOutputPort("local_position"),
+                LOCAL_POSITION)
+    loggers.add(builder, "landing_target", bridge.GetOutputPort("landing_target"),
+                LANDING_TARGET_RECEIVED)
     diagram = builder.Build()
     diagram.set_name("sim_autopilot")
     return diagram, loggers
