@@ -5,7 +5,9 @@ The onboard side is the scenario's stack, built by the very function simulation 
 (diagrams/stacks.py `add_onboard`) on the MAVLink vehicle's boundary ports; the stacks that fly
 on a position estimate (landing, waypoints) take the channel mocap (hw/channel_odometry.py) as
 their odometry; `hover` flies an open-loop attitude/thrust profile and needs no position
-estimate.
+estimate. The estimate the stack flies on also goes to the vehicle's `odometry` input: PX4 gets it
+as external vision (ODOMETRY); a landing stack's target estimate goes out as LANDING_TARGET
+(hw/landing_target.py).
 """
 import dataclasses as dc
 from pathlib import Path
@@ -19,6 +21,7 @@ from alight.diagrams.stacks import NEEDS_ODOMETRY, OnboardStack, add_onboard
 from alight.hw.channel_odometry import channel_odometry
 from alight.hw.endpoint import LOG
 from alight.hw.frame_channel import FrameSubscriber
+from alight.hw.landing_target import LandingTargetSender
 from alight.hw.link import MavlinkLink
 from alight.hw.mavlink_vehicle import (LINK_STATUS, MavlinkVehicleParams, command_sender,
                                        make_mavlink_vehicle)
@@ -50,14 +53,42 @@ def make_hil_diagram(link: MavlinkLink, params: MavlinkVehicleParams, scenario: 
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_mavlink_vehicle(link, params, frames,
                                                                      cameras))
-    odometry = channel_odometry(frames, link, params.channel_odometry) \
+    odometry = forwarded(channel_odometry(frames, link, params.channel_odometry)) \
         if frames is not None else None
     onboard = add_onboard(builder, scenario, vehicle, odometry)
+    add_landing_target(builder, link, params, onboard)
     onboard.loggers.add(builder, "link_status", vehicle.GetOutputPort("link_status"),
                         LINK_STATUS)
     diagram = builder.Build()
     diagram.set_name(f"hil_{scenario.onboard.stack}")
     return diagram, onboard
+
+
+def forwarded(odometry):
+    """The odometry hook `odometry` whose estimate also feeds the vehicle's `odometry` input (the
+    MAVLink vehicle sends it to PX4 as external vision)."""
+    def hook(builder, vehicle):
+        port = odometry(builder, vehicle)
+        builder.Connect(port, vehicle.GetInputPort("odometry"))
+        return port
+    return hook
+
+
+def add_landing_target(builder, link: MavlinkLink, params: MavlinkVehicleParams,
+                       onboard: OnboardStack) -> LandingTargetSender | None:
+    """LANDING_TARGET from a landing stack's target EKF (its `perception` and state estimate);
+    None for a stack without a target."""
+    parts = onboard.parts
+    perception = getattr(parts, "perception", None)
+    estimate = getattr(getattr(parts, "loop", None), "state_estimate_port", None) \
+        or getattr(parts, "state_estimate", None)
+    if perception is None or estimate is None:
+        return None
+    sender = builder.AddNamedSystem("landing_target", LandingTargetSender(
+        link, 1.0 / params.landing_target_rate))
+    builder.Connect(perception.target_estimate, sender.GetInputPort("target_estimate"))
+    builder.Connect(estimate, sender.GetInputPort("state_estimate"))
+    return sender
 
 
 @dc.dataclass

@@ -60,6 +60,7 @@ class MavlinkVehicleParams:
     odometry_rate: float = bounded(30.0, 0.0, 200.0, "Hz")
     odometry_estimator: str = "vision"   # ODOMETRY estimator_type: vision or vio (PX4 fuses both)
     odometry_worst_std: float = bounded(1.0, 0.01, 100.0, "m")  # quality 1 at this position std
+    landing_target_rate: float = bounded(20.0, 0.1, 100.0, "Hz")  # LANDING_TARGET (`alight hil`)
 
     def __post_init__(self):
         estimator_type(self.odometry_estimator)  # a clear error for an unknown type
