@@ -9,9 +9,9 @@ import dataclasses as dc
 import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera,
-                              GeometryInstance, MakeRenderEngineVtk, Mesh, RenderCameraCore,
-                              RenderEngineVtkParams)
+from pydrake.geometry import (Box, ClippingRange, ColorRenderCamera, Cylinder, DepthRange,
+                              DepthRenderCamera, GeometryInstance, MakeRenderEngineVtk, Mesh,
+                              RenderCameraCore, RenderEngineVtkParams)
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
@@ -120,13 +120,41 @@ def _add_camera(builder, plant, scene_graph, scene: TargetScene, vehicle_body):
         return camera.GetOutputPort("down_image")
     if scene.vehicle is None:
         raise ValueError("the geometric down camera observes the target: set a target profile")
+    inspector = scene_graph.model_inspector()
     camera = builder.AddNamedSystem("down_camera", GeometricDownCamera(
-        params, scene.pattern.p_TK, vehicle_body.index(), scene.vehicle.platform.index()))
+        params, scene.pattern.p_TK, vehicle_body.index(), scene.vehicle.platform.index(),
+        legs=leg_capsules(plant, inspector, vehicle_body),
+        outline_T=body_outline(plant, inspector, scene.vehicle.platform)))
     builder.Connect(plant.get_body_poses_output_port(), camera.GetInputPort("body_poses"))
-    noise = builder.AddNamedSystem("down_camera_noise", RandomSource(
-        RandomDistribution.kGaussian, camera.noise_size(), params.period))
-    builder.Connect(noise.get_output_port(), camera.GetInputPort("noise"))
+    builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                    camera.GetInputPort("body_spatial_velocities"))
+    seed = builder.AddNamedSystem("down_camera_noise", RandomSource(
+        RandomDistribution.kUniform, 1, params.period))
+    builder.Connect(seed.get_output_port(), camera.GetInputPort("noise_seed"))
     return camera.GetOutputPort("down_image")
+
+
+def _visuals(plant, inspector, body, name: str):
+    """(shape, X_BG) of the body's visual geometries whose name contains `name`."""
+    return [(inspector.GetShape(g), inspector.GetPoseInFrame(g))
+            for g in plant.GetVisualGeometriesForBody(body) if name in inspector.GetName(g)]
+
+
+def leg_capsules(plant, inspector, body) -> tuple:
+    """The vehicle's legs as (end, end, radius) in B: its `leg` visual cylinders (airframe SDF)."""
+    return tuple((X_BG.multiply([0.0, 0.0, -s.length() / 2]),
+                  X_BG.multiply([0.0, 0.0, s.length() / 2]), s.radius())
+                 for s, X_BG in _visuals(plant, inspector, body, "leg") if isinstance(s, Cylinder))
+
+
+def body_outline(plant, inspector, platform) -> np.ndarray | None:
+    """The top rectangle (4, 3) in T of the car's `body` visual box (target_vehicle.sdf)."""
+    boxes = [(s, X) for s, X in _visuals(plant, inspector, platform, "body") if isinstance(s, Box)]
+    if not boxes:
+        return None
+    box, X_TG = boxes[0]
+    w, d, h = np.asarray(box.size()) / 2
+    return X_TG.multiply(np.array([[w, d, h], [-w, d, h], [-w, -d, h], [w, -d, h]]).T).T
 
 
 def add_render_sensor(builder, plant, scene_graph, params: DownCameraParams, body,
@@ -167,7 +195,9 @@ class DownCameraRig:
         self._sensor = add_render_sensor(builder, plant, scene_graph, camera, self._body)
         self.camera = RenderedDownCamera(camera)
         self.lens = camera.lens()
-        self._geometric = GeometricDownCamera(camera, self.scene.pattern.p_TK, 0, 0)
+        outline_T = body_outline(plant, scene_graph.model_inspector(), self.scene.vehicle.platform)
+        self.geometric = GeometricDownCamera(camera, self.scene.pattern.p_TK, 0, 0,
+                                             outline_T=outline_T)
         self._plant = plant
         self._height = target.platform_height
         self._diagram = builder.Build()
@@ -201,4 +231,14 @@ class DownCameraRig:
     def observe(self, X_WB: RigidTransform, target_xy_heading=(0.0, 0.0, 0.0)):
         """Noise-free distorted keypoint pixels and their visibility (the geometric source)."""
         self.set_poses(X_WB, target_xy_heading)
-        return self._geometric.observe(self.X_CT().inverse())
+        return self.geometric.observe(self.X_CT().inverse())
+
+    def candidates(self, X_WB: RigidTransform, target_xy_heading=(0.0, 0.0, 0.0),
+                   rng: np.random.Generator | None = None,
+                   X_TC_before: RigidTransform | None = None):
+        """The geometric source's candidates (distorted pixels) and what each is (keypoint id, or
+        -1 for a false one); `X_TC_before`: the camera `exposure` earlier (default: no motion)."""
+        self.set_poses(X_WB, target_xy_heading)
+        X_TC = self.X_CT().inverse()
+        return self.geometric.candidates(X_TC, X_TC if X_TC_before is None else X_TC_before,
+                                         rng if rng is not None else np.random.default_rng(0))

@@ -3,8 +3,10 @@ are not synchronized to the IMU, in two sources (DESIGN.md "Simulation fidelity"
 
 - `RenderedDownCamera`: a Drake `RgbdSensor` pinhole colour render of the scene, distorted through
   the lens model (`down_camera_lens.Lens`) by `cv2.remap`, converted to grey, with pixel noise;
-- `GeometricDownCamera`: the landing pattern's keypoints projected through the same lens model, with
-  5 px noise (L Sec. 5.2.2), field-of-view, view-angle and image-border checks, and dropouts.
+- `GeometricDownCamera`: a sensor model of the image front end's output: the landing pattern's
+  keypoints projected through the same lens model as unlabelled candidates, with the misses (motion
+  blur, distance, the vehicle's legs), noise, outliers and false candidates of the rendered pipeline
+  (calibrated: bench/sensing_calibration.py); `mode: labelled` keeps the idealized labelled keypoints.
 
 Timing, common to both: exposures at `phase + k period` (not on the IMU's sample grid); a frame is
 published `latency` after its exposure; its stamp is the exposure time plus `stamp_offset` (the
@@ -14,11 +16,12 @@ import dataclasses as dc
 
 import cv2
 import numpy as np
+from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
-from scipy.stats import norm
 
 from alight.systems.boundary import CameraFrame
 from alight.systems.params import bounded, choice
@@ -42,11 +45,21 @@ class DownCameraParams:
     render_scale: float = bounded(1.0, 0.1, 4.0)
     renderer_backend: str = choice("", "EGL", "GLX")
     image_noise_std: float = bounded(2.0, 0.0, 100.0, "grey levels")
+    # geometric source (GeometricDownCamera; calibration: docs/target.md)
+    mode: str = choice("candidates", "labelled")
     keypoint_noise_std: float = bounded(5.0, 0.0, 100.0, "px")
     frame_dropout: float = bounded(0.02, 0.0, 1.0)
     keypoint_dropout: float = bounded(0.05, 0.0, 1.0)
     border_margin: float = bounded(10.0, 0.0, 1000.0, "px")
     max_view_angle: float = bounded(80.0, 0.0, 90.0, "deg")
+    exposure: float = bounded(0.005, 0.0, 0.1, "s")
+    blur_halving: float = bounded(20.0, 0.1, 1e4, "px")
+    size_halving: float = bounded(25.0, 0.0, 1e4, "px")
+    size_width: float = bounded(4.0, 0.1, 1e4, "px")
+    outlier_probability: float = bounded(0.02, 0.0, 1.0)
+    outlier_radius: float = bounded(25.0, 0.0, 1000.0, "px")
+    false_pattern_rate: float = bounded(0.3, 0.0, 100.0, "per frame")
+    false_body_rate: float = bounded(1.0, 0.0, 100.0, "per frame")
 
     def X_BC(self) -> RigidTransform:
         return RigidTransform(RollPitchYaw(np.radians(self.rpy_BC)), self.p_BC)
@@ -156,14 +169,37 @@ class RenderedDownCamera(TimedCamera):
 
 
 class GeometricDownCamera(TimedCamera):
-    """Input  `body_poses`  the plant's body poses (the vehicle's and the target platform's)
-    Input  `noise`       (2 n + n + 1) unit white Gaussian noise, resampled every period: pixel
-                         noise, keypoint dropouts, frame dropout (n keypoints)
-    Output `down_image`  CameraFrame without image: keypoints (distorted pixels), keypoint_ids,
-                         calibration
+    """A sensor model of the image front end's output (DESIGN.md "Simulation fidelity").
+
+    `mode: candidates` (the default): what the detector and the keypoint tracker would find in the
+    frame, as unlabelled, shuffled keypoint candidates (distorted pixels, `keypoint_ids` None), so
+    that the estimator's own association, symmetry resolution and outlier rejection run on them:
+    - the pattern's keypoints within the field, the image (minus `border_margin`) and
+      `max_view_angle`, and not behind one of the vehicle's own legs (`legs`: capsules in B, from
+      the airframe's SDF); the pattern is found in a frame with probability
+      `exp(-ln 2 (b / blur_halving)^2) / (1 + exp(-(s - size_halving) / size_width))`,
+      b the motion blur [px] of the pattern's centre over `exposure` (the vehicle's and the
+      platform's velocities), s the white square's side [px]; each keypoint is then missed with
+      `keypoint_dropout`;
+    - pixel noise `keypoint_noise_std`, and with `outlier_probability` a keypoint displaced by up
+      to `outlier_radius`;
+    - false candidates: a Poisson number `false_pattern_rate` per frame on the platform (look-alike
+      junctions of the ring and the cross) and `false_body_rate` on the car body's outline
+      (`outline_T`, its top rectangle in T), both where the camera sees them.
+    The rates and noise are calibrated against the rendered pipeline (bench/sensing_calibration.py,
+    docs/target.md).
+
+    `mode: labelled` (an idealization): the observed keypoints with their ids, Gaussian noise, the
+    same visibility and misses, no false candidates or outliers.
+
+    Input  `body_poses`               the plant's body poses (vehicle's, platform's)
+    Input  `body_spatial_velocities`  the plant's body spatial velocities (motion blur)
+    Input  `noise_seed`               (1) uniform in [0, 1), resampled every period
+    Output `down_image`               CameraFrame without image: keypoints, calibration
     """
 
-    def __init__(self, params: DownCameraParams, p_TK: np.ndarray, body_index, platform_index):
+    def __init__(self, params: DownCameraParams, p_TK: np.ndarray, body_index, platform_index,
+                 legs: tuple = (), outline_T: np.ndarray | None = None):
         super().__init__(params)
         self._lens = params.lens()
         self._calibration = self._lens.calibration()
@@ -171,48 +207,172 @@ class GeometricDownCamera(TimedCamera):
         self._X_BC = params.X_BC()
         self._body = int(body_index)
         self._platform = int(platform_index)
-        n = len(self._p_TK)
+        self._legs = [(np.asarray(a, float), np.asarray(b, float), float(r)) for a, b, r in legs]
+        self._outline_T = None if outline_T is None else np.asarray(outline_T, float)
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(
             [RigidTransform()]))
-        self._noise = self.DeclareVectorInputPort("noise", 3 * n + 1)
+        self._velocities = self.DeclareAbstractInputPort(
+            "body_spatial_velocities", AbstractValue.Make([SpatialVelocity()]))
+        self._seed = self.DeclareVectorInputPort("noise_seed", 1)
         corners = np.array([[0, 0], [self._lens.width - 1, self._lens.height - 1]], float)
         self._max_radius = 1.02 * np.linalg.norm(self._lens.normalized(corners), axis=1).max()
 
-    def noise_size(self) -> int:
-        return 3 * len(self._p_TK) + 1
-
     def _expose(self, context) -> CameraFrame | None:
-        p = self._params
-        noise = self._noise.Eval(context)
-        n = len(self._p_TK)
-        if norm.cdf(noise[-1]) < p.frame_dropout:
-            return None
         poses = self._poses.Eval(context)
+        velocities = self._velocities.Eval(context)
+        rng = np.random.default_rng(int(self._seed.Eval(context)[0] * 2 ** 31))
+        if rng.random() < self._params.frame_dropout:
+            return None
         X_WC = poses[self._body] @ self._X_BC
         X_TC = poses[self._platform].inverse() @ X_WC
-        uv, visible = self.observe(X_TC)
-        visible &= norm.cdf(noise[2 * n:3 * n]) >= p.keypoint_dropout
-        uv = uv + p.keypoint_noise_std * noise[:2 * n].reshape(n, 2)
-        ids = np.flatnonzero(visible)
+        X_TC_before = _moved(poses[self._platform], velocities[self._platform],
+                             -self._params.exposure).inverse() @ \
+            _moved(poses[self._body], velocities[self._body], -self._params.exposure) @ self._X_BC
+        if self._params.mode == "labelled":
+            return self._labelled(context, X_TC, rng)
+        uv, _ = self.candidates(X_TC, X_TC_before, rng)
         return CameraFrame(stamp=self._stamp(context), calibration=self._calibration,
-                           keypoints=uv[ids], keypoint_ids=ids)
+                           keypoints=uv)
+
+    def _labelled(self, context, X_TC, rng) -> CameraFrame | None:
+        p = self._params
+        uv, visible = self.observe(X_TC)
+        visible &= rng.random(len(uv)) >= p.keypoint_dropout
+        ids = np.flatnonzero(visible)
+        uv = uv[ids] + p.keypoint_noise_std * rng.standard_normal((len(ids), 2))
+        return CameraFrame(stamp=self._stamp(context), calibration=self._calibration,
+                           keypoints=uv, keypoint_ids=ids)
+
+    def candidates(self, X_TC: RigidTransform, X_TC_before: RigidTransform,
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's shuffled candidates (N, 2) in distorted pixels and what each one is (the
+        pattern keypoint's id, or -1 for a false candidate: for tests and the calibration, never
+        sent). `X_TC_before`: the camera `exposure` earlier (motion blur)."""
+        p = self._params
+        uv, visible = self.observe(X_TC)
+        if rng.random() >= self.detection_probability(X_TC, X_TC_before):
+            visible[:] = False
+        visible &= rng.random(len(uv)) >= p.keypoint_dropout
+        ids = np.flatnonzero(visible)
+        uv = uv[ids] + p.keypoint_noise_std * rng.standard_normal((len(ids), 2))
+        outliers = rng.random(len(ids)) < p.outlier_probability
+        uv[outliers] += _uniform_in_disc(rng, outliers.sum(), p.outlier_radius)
+        false_uv = np.vstack([self._false_candidates(X_TC, rng, p.false_pattern_rate,
+                                                     self._on_platform),
+                              self._false_candidates(X_TC, rng, p.false_body_rate,
+                                                     self._on_outline)])
+        uv = np.vstack([uv, false_uv])
+        truth = np.concatenate([ids, np.full(len(false_uv), -1)])
+        order = rng.permutation(len(uv))
+        return uv[order], truth[order]
+
+    def detection_probability(self, X_TC: RigidTransform, X_TC_before: RigidTransform) -> float:
+        """Probability that the front end finds the pattern in a frame that arrives: motion blur
+        of the pattern's centre over the exposure, and the white square's size in pixels."""
+        p = self._params
+        p_CT = [X.inverse().translation() for X in (X_TC, X_TC_before)]
+        if min(q[2] for q in p_CT) <= 0.05:
+            return 0.0
+        blur = float(np.linalg.norm(np.subtract(*(self._lens.project(q[None])[0] for q in p_CT))))
+        side = self._lens.K[0, 0] * 2 * np.abs(self._p_TK[0, 0]) / p_CT[0][2]
+        sharp = np.exp(-np.log(2) * (blur / p.blur_halving) ** 2)
+        large = 1 / (1 + np.exp(-(side - p.size_halving) / p.size_width))
+        return float(sharp * large)
+
+    def _false_candidates(self, X_TC, rng, rate: float, sample) -> np.ndarray:
+        n = rng.poisson(rate)
+        if n == 0:
+            return np.zeros((0, 2))
+        p_TF = sample(rng, n)
+        if p_TF is None:
+            return np.zeros((0, 2))
+        uv, visible = self._visible(X_TC, p_TF)
+        return uv[visible]
+
+    def _on_platform(self, rng, n: int) -> np.ndarray:
+        """Look-alikes on the pattern: uniform over the white square."""
+        a = np.abs(self._p_TK[0, 0])
+        return np.column_stack([rng.uniform(-a, a, (n, 2)), np.zeros(n)])
+
+    def _on_outline(self, rng, n: int) -> np.ndarray | None:
+        """Edges and corners of the car's body: uniform along its top rectangle's perimeter."""
+        if self._outline_T is None:
+            return None
+        corners = self._outline_T
+        edges = np.roll(corners, -1, axis=0) - corners
+        lengths = np.linalg.norm(edges, axis=1)
+        s = rng.uniform(0, lengths.sum(), n)
+        k = np.searchsorted(np.cumsum(lengths), s, side="right").clip(0, 3)
+        fraction = (s - np.concatenate([[0], np.cumsum(lengths)])[k]) / lengths[k]
+        return corners[k] + fraction[:, None] * edges[k]
 
     def observe(self, X_TC: RigidTransform) -> tuple[np.ndarray, np.ndarray]:
-        """Noise-free distorted pixels of every keypoint and whether each can be seen: in front of
-        the camera, within the lens's field and the image (minus the border margin), and the
-        pattern seen from above within `max_view_angle` of its normal."""
+        """Noise-free distorted pixels of every pattern keypoint and whether each can be seen (see
+        `_visible`)."""
+        return self._visible(X_TC, self._p_TK)
+
+    def _visible(self, X_TC: RigidTransform, p_TK: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distorted pixels of points on the platform (T) and whether each can be seen: in front of
+        the camera, within the lens's field and the image (minus the border margin), the pattern
+        seen from above within `max_view_angle` of its normal, and no leg on the ray."""
         p = self._params
         p_TC = X_TC.translation()
-        p_CK = (X_TC.inverse().GetAsMatrix34() @ np.vstack([self._p_TK.T, np.ones(len(self._p_TK))])).T
+        p_CK = (X_TC.inverse().GetAsMatrix34() @ np.vstack([p_TK.T, np.ones(len(p_TK))])).T
         in_front = p_CK[:, 2] > 0.05
         radius = np.linalg.norm(p_CK[:, :2], axis=1) / np.maximum(p_CK[:, 2], 1e-9)
         in_field = in_front & (radius < self._max_radius)
         uv = np.full((len(p_CK), 2), np.nan)
         if in_field.any():
             uv[in_field] = self._lens.project(p_CK[in_field])
-        rays = p_TC - self._p_TK
+        rays = p_TC - p_TK
         cos_view = rays[:, 2] / np.linalg.norm(rays, axis=1)
         facing = cos_view > np.cos(np.radians(p.max_view_angle))
         visible = in_field & facing & self._lens.in_image(np.nan_to_num(uv, nan=-1e9),
                                                           p.border_margin)
+        if self._legs and visible.any():
+            visible &= ~self.occluded(self._X_BC.multiply(p_CK.T).T)
         return uv, visible
+
+    def occluded(self, p_BK: np.ndarray) -> np.ndarray:
+        """Whether the ray from the camera to each point (in B) passes one of the legs."""
+        p_BC = self._X_BC.translation()
+        hidden = np.zeros(len(p_BK), bool)
+        for a, b, radius in self._legs:
+            hidden |= _segment_distances(p_BC, p_BK, a, b) < radius
+        return hidden
+
+
+def _moved(X_WA: RigidTransform, V_WA: SpatialVelocity, dt: float) -> RigidTransform:
+    """The pose `dt` later at constant spatial velocity (first order in the rotation vector)."""
+    R = RotationMatrix(AngleAxis(float(np.linalg.norm(V_WA.rotational()) * dt),
+                                 _unit(V_WA.rotational()))) @ X_WA.rotation()
+    return RigidTransform(R, X_WA.translation() + V_WA.translational() * dt)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v)
+    return v / n if n > 0 else np.array([0.0, 0.0, 1.0])
+
+
+def _uniform_in_disc(rng, n: int, radius: float) -> np.ndarray:
+    angle = rng.uniform(0, 2 * np.pi, n)
+    r = radius * np.sqrt(rng.uniform(0, 1, n))
+    return np.column_stack([r * np.cos(angle), r * np.sin(angle)])
+
+
+def _segment_distances(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distances between the segments p-q[i] (N) and a-b (closest points, clamped)."""
+    d1 = q - p
+    d2 = b - a
+    r = p - a
+    aa = np.einsum("ij,ij->i", d1, d1)
+    ee = d2 @ d2
+    f = r @ d2
+    c = d1 @ r
+    bb = d1 @ d2
+    denominator = aa * ee - bb ** 2
+    s = np.where(denominator > 1e-12, np.clip((bb * f - c * ee) / np.where(
+        denominator > 1e-12, denominator, 1.0), 0, 1), 0.0)
+    t = np.clip((bb * s + f) / ee, 0, 1)
+    s = np.clip((bb * t - c) / aa, 0, 1)
+    return np.linalg.norm(p + s[:, None] * d1 - (a + t[:, None] * d2), axis=1)
