@@ -7,7 +7,8 @@ IMU sample once, stamped with the simulation's clock), ATTITUDE_QUATERNION, ATTI
 EXTENDED_SYS_STATE, SYS_STATUS, AUTOPILOT_VERSION, TIMESYNC answers, COMMAND_ACK and STATUSTEXT;
 it obeys SET_ATTITUDE_TARGET (attitude+thrust and rates+thrust), MAV_CMD_COMPONENT_ARM_DISARM,
 MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_LAND, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE and
-MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py. Camera
+MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py; it answers a
+ground station's parameter and mission requests (hw/ground_station.py). Camera
 frames and the simulated world's mocap estimate (the `mocap` sensor model of DESIGN.md: true pose
 plus noise and latency) go to the onboard side over the local frame channel (hw/frame_channel.py).
 External vision (ODOMETRY, as PX4's receiver filters it, hw/external_vision.py) goes to the
@@ -46,6 +47,7 @@ from alight.hw.endpoint import LOG, MavlinkEndpoint, addressed_to
 from alight.hw.external_vision import (LANDING_TARGET_RECEIVED, decode_landing_target,
                                       decode_odometry, odometry_message)
 from alight.hw.frame_channel import EstimateSample, FramePublisher
+from alight.hw.ground_station import GroundStationService, emulated_parameters
 from alight.hw.frames import b_to_frd, q_wb_to_nf, w_to_ned
 from alight.hw.link import MILLI_G
 from alight.models import model_path
@@ -66,7 +68,9 @@ _ONE_SHOT = {"AUTOPILOT_VERSION", "ATTITUDE_QUATERNION", "ATTITUDE", "EXTENDED_S
              "SYS_STATUS"}
 _CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
                  | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-                 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
+                 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+                 | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
 
 
 @dc.dataclass
@@ -193,7 +197,7 @@ class AutopilotEndpoint(MavlinkEndpoint):
             self.inbox.put(message)
         elif kind in ("ODOMETRY", "LANDING_TARGET"):
             self.inbox.put(message)
-        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
+        elif kind in ("COMMAND_LONG", "COMMAND_INT") or kind in GroundStationService.KINDS:
             self.inbox.put(message)
         return True
 
@@ -212,9 +216,11 @@ class AutopilotBridge(LeafSystem):
 
     def __init__(self, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
                  rules: AutopilotRules, command_period: float, imu_period: float,
-                 frames: FramePublisher | None = None):
+                 frames: FramePublisher | None = None,
+                 ground_station: GroundStationService | None = None):
         super().__init__()
         self._endpoint, self._params, self._rules, self._frames = endpoint, params, rules, frames
+        self._ground_station = ground_station
         self._command_period, self._imu_period = command_period, imu_period
         self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
@@ -286,6 +292,11 @@ class AutopilotBridge(LeafSystem):
             if message.get_type() == "SET_ATTITUDE_TARGET":
                 if not self._rules.setpoint_received(message, now):
                     endpoint.count_rejected()
+                continue
+            if message.get_type() in GroundStationService.KINDS:
+                for reply in (self._ground_station.answer(message) if self._ground_station
+                              else None) or []:
+                    endpoint.send(reply)
                 continue
             if message.get_type() in ("ODOMETRY", "LANDING_TARGET"):
                 decoded = (decode_odometry if message.get_type() == "ODOMETRY"
@@ -498,9 +509,12 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
     rules = AutopilotRules(commander.stale_timeout, commander.max_arm_thrust,
                            commander.hover_thrust, vehicle_config.flight_controller.period,
                            params.rules)
+    ground_station = GroundStationService(emulated_parameters(
+        vehicle_config.flight_controller, rules, params.system_id, params.component_id),
+        endpoint.mav)
     bridge = builder.AddNamedSystem("autopilot_bridge", AutopilotBridge(
         endpoint, params, rules, vehicle_config.flight_controller.period,
-        vehicle_config.imu.period, frames))
+        vehicle_config.imu.period, frames, ground_station))
     for name in ("imu", "fc_attitude", "fc_status", "rgbd", "down_image"):
         builder.Connect(vehicle.GetOutputPort(name), bridge.GetInputPort(name))
     builder.Connect(add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap),
