@@ -3,7 +3,10 @@ platform (2-15 m), camera tilts (0-30 deg), pattern positions in the image and p
 and on frames of the textured ground with its look-alike squares (models/textures.py).
 
 Rendered at 640 x 512 px with the default lens scaled by 1/2 (same field of view, 104 x 86 deg) to
-keep the test short; bench/detector.py times the full 1280 x 1024 camera.
+keep the test short; bench/detector.py times the full 1280 x 1024 camera. Each frame is searched
+twice: from a cold start (the whole frame) and around a prediction of the pattern (the target EKF's,
+here the truth moved by a filter-sized error): a window at a pyramid level that falls back to the
+whole frame when it misses.
 """
 import dataclasses as dc
 import itertools
@@ -16,7 +19,8 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from alight.diagrams.onboard.perception import load_target_estimator_params
 from alight.diagrams.world.target import DownCameraRig
 from alight.models.textures import GROUND_TILE
-from alight.systems.perception.detector import PatternDetector, Rectifier
+from alight.systems.perception.detector import (PatternDetector, Prediction, RectifiedFrame,
+                                                Rectifier)
 from alight.systems.perception.pattern import CORNER_IDS
 from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.target.vehicle import load_target_params
@@ -41,16 +45,22 @@ def perception(rig):
     return Rectifier(params), PatternDetector(rig.scene.pattern, params)
 
 
-def _detect(rig, perception, image, R_WC):
+# A filter's prediction error between frames and the uncertainty it reports (1 sigma).
+PREDICTION_ERROR = RigidTransform(RollPitchYaw(0.0, 0.02, 0.03), [0.08, -0.06, 0.05])
+PREDICTION_STD = (0.1, 0.03)  # m, rad
+
+
+def _detect(rig, perception, image, R_WC, prediction=None):
     """As the target estimator runs it: with the world's up in the camera frame (from the state
     estimate) to pick the level one of the planar pose solutions."""
     rectifier, detector = perception
-    smoothed = rectifier.smooth(rectifier.rectify(image, rig.lens))
-    binary = rectifier.binarize(smoothed)
-    valid = rectifier.valid(rig.lens)
+    frame = RectifiedFrame(rectifier, image, rig.lens)
     z_up_C = R_WC.inverse().multiply(np.array([0.0, 0.0, 1.0]))
-    return detector, smoothed, binary, valid, detector.detect(
-        smoothed, binary, valid, rig.lens.K_rectified, z_up_C=z_up_C)
+    return detector, frame, detector.detect(frame, z_up_C=z_up_C, prediction=prediction)
+
+
+def _predicted(X_CT) -> Prediction:
+    return Prediction(X_CT @ PREDICTION_ERROR, *PREDICTION_STD)
 
 
 def _pose_error(X_CT_detected, X_CT_true) -> tuple[float, float]:
@@ -92,10 +102,12 @@ def grid(rig, perception):
         corners = uv[list(CORNER_IDS)]
         whole = bool(np.all(np.isfinite(corners)) and rig.lens.in_image(corners).all())
         side = np.sqrt(abs(cv2.contourArea(corners.astype(np.float32)))) if whole else 0.0
-        detector, *_, detections = _detect(rig, perception, image, R_WC)
+        X_CT = rig.X_CT()
+        *_, detections = _detect(rig, perception, image, R_WC)
+        *_, tracked = _detect(rig, perception, image, R_WC, _predicted(X_CT))
         results.append(dict(height=height, tilt=tilt, offset=(fu, fv), whole=whole, side=side,
                             inside=whole and bool(rig.lens.in_image(corners, 10.0).all()),
-                            X_CT=rig.X_CT(), detections=detections))
+                            X_CT=X_CT, detections=detections, roi_detections=tracked))
     return results
 
 
@@ -110,10 +122,13 @@ def ground_frames(rig, perception):
                               [-GROUND_TILE / 2 + (i + 0.5) * spacing,
                                -GROUND_TILE / 2 + (j + 0.5) * spacing, height])
         image = rig.render(X_WB, (500.0, 500.0, 0.0), seed=i + 3 * j)
-        detector, smoothed, binary, valid, detections = _detect(rig, perception, image,
-                                                                X_WB.rotation() @ rig.X_BC.rotation())
-        frames.append(dict(candidates=detector.candidates(smoothed, binary, valid),
-                           detections=detections))
+        R_WC = X_WB.rotation() @ rig.X_BC.rotation()
+        detector, frame, detections = _detect(rig, perception, image, R_WC)
+        # a prediction of the pattern where a look-alike is (the image centre, 6 m away)
+        X_CT = RigidTransform(RotationMatrix(R_WC.inverse().matrix()), [0.0, 0.0, 6.0])
+        *_, predicted = _detect(rig, perception, image, R_WC, Prediction(X_CT, 0.3, 0.1))
+        frames.append(dict(candidates=detector.candidates(frame.view()),
+                           detections=detections + predicted))
     return frames
 
 
@@ -123,14 +138,16 @@ def _seen(r) -> bool:
     return r["inside"] and r["side"] >= 15.0
 
 
-def test_detection_recall_over_heights_tilts_and_image_positions(grid):
+@pytest.mark.parametrize("mode", ["detections", "roi_detections"])
+def test_detection_recall_over_heights_tilts_and_image_positions(grid, mode):
+    """Cold start (the whole frame) and around a prediction (window, pyramid, fallback)."""
     seen = [r for r in grid if _seen(r)]
-    recall = np.mean([len(r["detections"]) > 0 for r in seen])
-    by_height = {h: float(np.mean([len(r["detections"]) > 0 for r in seen if r["height"] == h]))
+    recall = np.mean([len(r[mode]) > 0 for r in seen])
+    by_height = {h: float(np.mean([len(r[mode]) > 0 for r in seen if r["height"] == h]))
                  for h in HEIGHTS}
     whole = [r for r in grid if r["whole"]]
-    print(f"\nrecall {recall:.3f} over {len(seen)} frames with the pattern in view; by height "
-          f"{by_height}; {np.mean([len(r['detections']) > 0 for r in whole]):.3f} over all "
+    print(f"\n{mode}: recall {recall:.3f} over {len(seen)} frames with the pattern in view; by "
+          f"height {by_height}; {np.mean([len(r[mode]) > 0 for r in whole]):.3f} over all "
           f"{len(whole)} frames with the square anywhere in the image")
     # The grid covers 2-15 m, tilts to 30 deg and positions up to the image corners (where the
     # lens compresses the pattern): the detector initializes the EKF from any of these, and a
@@ -138,6 +155,56 @@ def test_detection_recall_over_heights_tilts_and_image_positions(grid):
     assert len(seen) >= 50
     assert recall >= 0.95
     assert min(by_height.values()) >= 0.8
+
+
+def test_search_around_the_prediction_finds_the_same_corners(grid):
+    """The window / pyramid search refines its corners at full resolution: the same corners as
+    the whole-frame search to a small fraction of a pixel, wherever both found the pattern."""
+    both = [r for r in grid if r["detections"] and r["roi_detections"]]
+    gaps = [np.linalg.norm(r["roi_detections"][0].corners[None]
+                           - r["detections"][0].corners[:, None], axis=2).min(axis=1).max()
+            for r in both]
+    print(f"\n{len(both)} frames: corner gap median {np.median(gaps):.3f} px, max "
+          f"{np.max(gaps):.3f} px")
+    assert len(both) >= 50
+    assert np.median(gaps) < 0.1 and np.max(gaps) < 0.5
+
+
+def test_search_region_grows_with_uncertainty_and_coarsens_when_large(rig, perception):
+    _, detector = perception
+    X_CT = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.3), [0.2, -0.1, 6.0])
+    level, tight = detector.search_region(Prediction(X_CT, 0.05, 0.01), rig.lens)
+    _, loose = detector.search_region(Prediction(X_CT, 0.5, 0.01), rig.lens)
+    width = lambda w: w[2] - w[0]
+    # 3 sigma of 0.45 m more at 6 m with f = 256 px: 58 px more on each side
+    assert width(loose) - width(tight) == pytest.approx(2 * 3 * 0.45 * 256 / 6.0, rel=0.05)
+    assert level == 0  # the white square spans 56 px at 6 m: no coarser level keeps 48 px
+    near, _ = detector.search_region(Prediction(RigidTransform(X_CT.rotation(), [0, 0, 1.5]),
+                                                0.05, 0.01), rig.lens)
+    assert near == 2  # 224 px across: a quarter still spans 56 px
+    behind = RigidTransform(X_CT.rotation(), [0.0, 0.0, -3.0])
+    assert detector.search_region(Prediction(behind, 0.05, 0.01), rig.lens) is None
+
+
+def test_a_wrong_prediction_falls_back_to_the_whole_frame(rig, perception):
+    """Predicted 4 m off to the side (a lost track): the window misses, the whole frame finds it."""
+    X_WB = RigidTransform(RollPitchYaw(0.0, 0.0, 0.2), [*TARGET_XY, 7.0])
+    image = rig.render(X_WB, (*TARGET_XY, 0.0), seed=3)
+    R_WC = X_WB.rotation() @ rig.X_BC.rotation()
+    X_CT = rig.X_CT()
+    wrong = Prediction(RigidTransform([4.0, 0.0, 0.0]) @ X_CT, 0.05, 0.01)
+    _, detector = perception
+    frame = RectifiedFrame(perception[0], image, rig.lens)
+    assert not detector._detect_in(frame, frame.view(*detector.search_region(wrong, rig.lens)),
+                                   None, None)  # the window alone finds nothing...
+    *_, detections = _detect(rig, perception, image, R_WC, wrong)
+    assert detections  # ...the fallback does
+    assert _pose_error(detections[0].X_CT, X_CT)[0] < 0.05
+
+
+def test_frame_of_the_wrong_size_is_refused(rig, perception):
+    with pytest.raises(ValueError, match="640 x 512"):
+        RectifiedFrame(perception[0], np.zeros((480, 640), np.uint8), rig.lens)
 
 
 def test_detected_pose_error_in_centimetres_and_degrees(grid):
@@ -176,22 +243,31 @@ def test_lookalike_squares_on_the_ground_are_rejected(ground_frames):
     print(f"\n{candidates} quadrilateral candidates in {len(ground_frames)} ground frames, "
           f"{false_positives} frames with a false detection")
     assert candidates >= 20  # the look-alikes do reach the verification step...
-    assert false_positives == 0  # ...and none passes it
+    assert false_positives == 0  # ...and none passes it, searched whole or around a prediction
 
 
-def test_detected_corners_land_where_the_lens_projects_them(rig, perception):
+@pytest.mark.parametrize("height, level", [(5.0, 0), (3.0, 1), (2.6, 2)])
+def test_detected_corners_land_where_the_lens_projects_them(rig, perception, height, level):
     """The render, the lens distortion and the rectification agree to a fraction of a pixel
-    (RENDER_PIXEL_OFFSET in down_camera.py): nadir view from 4 m."""
-    X_WB = RigidTransform(RollPitchYaw(0.0, 0.0, 0.2), [*TARGET_XY, 5.0])
+    (RENDER_PIXEL_OFFSET in down_camera.py): nadir views from 4, 2 and 1.6 m above the platform,
+    each also searched around the prediction (at full, half and quarter resolution, the corners
+    then refined at full resolution)."""
+    X_WB = RigidTransform(RollPitchYaw(0.0, 0.0, 0.2), [*TARGET_XY, height])
     image = rig.render(X_WB, (*TARGET_XY, 0.0), seed=1)
     *_, detections = _detect(rig, perception, image, X_WB.rotation() @ rig.X_BC.rotation())
-    assert detections
+    *_, near = _detect(rig, perception, image, X_WB.rotation() @ rig.X_BC.rotation(),
+                       _predicted(rig.X_CT()))
+    assert detections and near
     p_CK = (rig.X_CT().GetAsMatrix34() @ np.vstack([rig.scene.pattern.corners.T,
                                                     np.ones(4)])).T
     expected = rig.lens.rectified_project(p_CK)
     # The pattern's 90-degree symmetry: compare each projected corner with the nearest detected.
-    error = np.linalg.norm(detections[0].corners[None] - expected[:, None], axis=2).min(axis=1)
-    print(f"\ncorner error {error.round(3)} px")
-    assert error.max() < 0.5
+    error, near_error = (np.linalg.norm(d[0].corners[None] - expected[:, None],
+                                        axis=2).min(axis=1) for d in (detections, near))
+    print(f"\ncorner error {error.round(3)} px; searched at pyramid level "
+          f"{perception[1].search_region(_predicted(rig.X_CT()), rig.lens)[0]}: "
+          f"{near_error.round(3)} px")
+    assert perception[1].search_region(_predicted(rig.X_CT()), rig.lens)[0] == level
+    assert error.max() < 0.5 and near_error.max() < 0.5
 
 

@@ -5,7 +5,8 @@ L(20) on position and velocity (and angle, rate) errors against the reference an
 the input that holds the reference velocity; hard bounds on commanded pitch, roll and thrust; soft
 bounds on velocity and attitude with slacks s >= 0 penalized by lambda (L(25)-(26)), so the QP is
 feasible in every state. The MathematicalProgram (solved by OSQP) is built once; each tick only the
-linear cost term and the soft-constraint bounds change (L(27)).
+linear cost term and the soft-constraint bounds change (L(27)): a fixed quadratic cost holds the
+Hessian, a separate linear cost the per-tick term, so no matrix is handed over per tick.
 
 The reference position moves along the reference velocity over the horizon (L Sec. 6.3 notes the
 formulation handles a time-varying reference; a static one over a long horizon lags behind a
@@ -32,6 +33,7 @@ from alight.systems.control.controller import Controller
 from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
                                                  LinearModelParams, continuous_model, discretize,
                                                  model_state, rotate_to_navigation)
+from alight.systems.control.persistent_daqp import PersistentDaqp
 from alight.systems.control.persistent_osqp import PersistentOsqp, QpResult
 from alight.systems.params import bounded, choice
 from alight.systems.rotations import heading_quaternion, quaternion_product, rotation_matrix
@@ -63,9 +65,13 @@ class LinearMpcParams:
     # the disturbance estimate per tick (0: off, the paper's controller), and its bound.
     disturbance_gain: float = bounded(0.0, 0.0, 1.0)
     max_disturbance: float = bounded(3.0, 0.0, 9.81, "m/s^2")
-    # persistent: one warm-started osqp workspace built from the MathematicalProgram (fast);
-    # drake: Drake's OsqpSolver, set up cold every tick (bench/mpc_solve.py compares them).
-    solver: str = choice("persistent", "drake")
+    # persistent: one warm-started osqp workspace built from the MathematicalProgram;
+    # drake: Drake's OsqpSolver, set up cold every tick; daqp: one warm-started DAQP (dual
+    # active-set) workspace built from the same program, exact and with a bounded tail
+    # (bench/mpc_solve.py compares them).
+    solver: str = choice("persistent", "drake", "daqp")
+    # daqp only: curvature given to the slacks (DAQP needs a positive-definite Hessian)
+    slack_regularization: float = bounded(1e-3, 1e-9, 1.0)
 
 
 MPC_DISTURBANCE = VectorLayout("mpc_disturbance", [("d_W", 3)])  # the `disturbance` output
@@ -144,8 +150,8 @@ class LinearMpcQp:
         self.Wd = np.tile(p.weight_input_change, N)
         H = self.Gamma.T @ (self.W[:, None] * self.Gamma) + np.diag(self.Rw) \
             + self.D.T @ (self.Wd[:, None] * self.D)
-        self._H2 = 2.0 * H
-        self.cost = self.prog.AddQuadraticCost(self._H2, np.zeros(N * m), self.u, is_convex=True)
+        self.prog.AddQuadraticCost(2.0 * H, np.zeros(N * m), self.u, is_convex=True)
+        self.cost = self.prog.AddLinearCost(np.zeros(N * m), 0.0, self.u)  # 2 f per tick
         self.prog.AddLinearCost(p.slack_penalty * np.ones(num_slacks), 0.0, self.s)
         tilt = np.radians(p.max_tilt_command)
         lower = np.tile([-tilt, -tilt, p.thrust_acceleration[0]], N)
@@ -166,6 +172,7 @@ class LinearMpcQp:
         self._u_index = self.prog.FindDecisionVariableIndices(self.u)
         self._s_index = self.prog.FindDecisionVariableIndices(self.s)
         self.persistent = PersistentOsqp(self.prog, p.osqp_eps) if p.solver == "persistent" \
+            else PersistentDaqp(self.prog, p.slack_regularization) if p.solver == "daqp" \
             else None
         self.solver = OsqpSolver()
         self.options = SolverOptions()
@@ -184,7 +191,7 @@ class LinearMpcQp:
             e = np.zeros(len(f))
             e[:NUM_INPUTS] = u_previous
             f -= self.D.T @ (self.Wd * e)
-        self.cost.evaluator().UpdateCoefficients(self._H2, 2.0 * f, 0.0, True)
+        self.cost.evaluator().UpdateCoefficients(2.0 * f)
         bound = self.h.copy()
         bound[:self.num_state_rows] -= self.G_bar @ free
         self.soft.evaluator().UpdateUpperBound(bound)

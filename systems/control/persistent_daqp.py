@@ -1,0 +1,76 @@
+"""A MathematicalProgram QP solved by one persistent, warm-started DAQP workspace (option).
+
+DAQP (Arnström, Bemporad, Axehill 2022) is a dual active-set solver for small dense QPs: it
+solves to the exact optimum of its active set, and warm-started from the previous tick's active
+set it needs a few iterations where the active set changes, where ADMM (OSQP) needs hundreds to
+thousands (bench/mpc_solve.py). Like persistent_osqp.py, the workspace is set up once from the
+program's bindings (program_qp.ProgramQp); each `solve()` hands DAQP the program's current linear
+cost terms and bounds. Bounding-box rows become DAQP's simple bounds, equality rows its immutable
+constraints.
+
+DAQP needs a positive-definite Hessian. A variable without curvature of its own (an exact-penalty
+slack, L(25)) gets `regularization` on its Hessian diagonal: its cost lambda s becomes
+lambda s + regularization/2 s^2. Such a variable with a positive linear cost starts at its lower
+bound (the initial active set), where the penalty keeps it unless a soft constraint is violated.
+A solve that does not reach an optimum (iteration limit, cycling) is reported, never used.
+"""
+import daqp
+import numpy as np
+from pydrake.solvers import MathematicalProgram
+
+from alight.systems.control.program_qp import ProgramQp, QpResult
+
+OPTIMAL = 1       # DAQP exit flag of an optimal solution
+BIG = 1e30        # DAQP's bound for "none"
+ACTIVE, LOWER, IMMUTABLE = 1, 2, 4  # DAQP constraint sense bits
+
+
+class PersistentDaqp:
+    """`PersistentDaqp(prog, regularization=..., iter_limit=...)`; `solve()` after updating the
+    bindings."""
+
+    def __init__(self, prog: MathematicalProgram, regularization: float = 1e-3,
+                 iter_limit: int = 1000):
+        if regularization <= 0:
+            raise ValueError(f"regularization must be > 0 (got {regularization})")
+        self.prog = prog
+        self.qp = ProgramQp(prog)
+        n = self.qp.num_vars
+        H = self.qp.P.copy()
+        flat = np.all(H == 0.0, axis=1)  # variables without curvature of their own
+        H[flat, flat] = regularization
+        self._general = self.qp.box_variable < 0
+        lower, upper = self._bounds()
+        sense = np.zeros(len(upper), np.int32)
+        sense[n:][lower[n:] == upper[n:]] = ACTIVE | IMMUTABLE
+        starts_low = flat & (self.qp.q() > 0) & (lower[:n] > -BIG)
+        sense[:n][starts_low] = ACTIVE | LOWER
+        self.solver = daqp.Model()
+        self.solver.settings = {"iter_limit": iter_limit, "eps_prox": 0.0}
+        flag, _ = self.solver.setup(H, self.qp.q(), np.ascontiguousarray(self.qp.A[self._general]),
+                                    upper, lower, sense)
+        if flag < 0:
+            raise ValueError(f"DAQP setup failed (exit flag {flag}): the Hessian with "
+                             f"regularization {regularization} is not positive definite")
+
+    def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """DAQP's bounds: the simple bounds of every variable, then the general rows."""
+        lower_rows, upper_rows = self.qp.bounds()
+        n = self.qp.num_vars
+        lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
+        box = ~self._general
+        np.maximum.at(lower, self.qp.box_variable[box], lower_rows[box])
+        np.minimum.at(upper, self.qp.box_variable[box], upper_rows[box])
+        lower = np.concatenate([lower, lower_rows[self._general]])
+        upper = np.concatenate([upper, upper_rows[self._general]])
+        return np.maximum(lower, -BIG), np.minimum(upper, BIG)
+
+    def solve(self) -> QpResult:
+        """Solves with the program's current linear cost terms and bounds, from the previous
+        tick's active set."""
+        lower, upper = self._bounds()
+        self.solver.update(f=self.qp.q(), bupper=upper, blower=lower)
+        x, _, flag, info = self.solver.solve()
+        x = np.asarray(x, float)
+        ok = flag == OPTIMAL and x.shape == (self.qp.num_vars,) and bool(np.all(np.isfinite(x)))
+        return QpResult(ok, x, int(flag), int(info["iterations"]))
