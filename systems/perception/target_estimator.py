@@ -6,15 +6,24 @@ interpolated at the stamp (a short history of `state_estimate` samples is kept) 
 extrinsics X_BC of the frame's calibration. With an initialized filter the keypoints are tracked from
 the predicted pose and fused one by one; when fewer than `min_tracked_keypoints` are accepted, the
 detector runs and its corners are fused the same way, or, with no accepted keypoint for
-`reinit_after`, the filter is re-initialized from the detection (L Sec. 5.2.2: initialization from a
-full detection). Frames of the `geometric` source carry keypoints instead of an image: their
-"detection" is the pose from the four observed corners and their "tracking" is the observed
-keypoints; the EKF, its gating and the pose computation are the same code for both sources.
+`reinit_after`, or when the filter rejects every keypoint of the detection (a track kept alive by
+wrong associations), the filter is re-initialized from the detection (L Sec. 5.2.2: initialization
+from a full detection). Frames of the `geometric` source carry keypoint candidates instead of an image
+(down_camera.GeometricDownCamera, a sensor model of the front end): unlabelled, with false ones and
+outliers; their detection is a search for the pattern's white square among them (convex quads of
+candidates with the detector's minimum area that hold enough other candidates), its pose by the
+detector's symmetric PnP (`PatternDetector.pose`, the 90-degree rotation nearest the filter's or the
+image's up) and a verification that the pattern's other keypoints reproject onto candidates; their
+tracking is the association of each predicted keypoint with the nearest candidate in the keypoint
+tracker's search window. The EKF, its chi-square gating (the outlier rejection), the symmetric pose
+and the re-initialization logic are the same code for both sources. (`mode: labelled` frames carry
+the keypoints' ids: an idealization that skips association, kept as an option.)
 Between frames the estimate is predicted to the output time, so its covariance grows while no
 measurement arrives.
 """
 import copy
 import dataclasses as dc
+import itertools
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -42,6 +51,9 @@ class TargetEstimatorParams:
     min_tracked_keypoints: int = bounded(4, 0, 100)
     reinit_after: float = bounded(0.5, 0.0, 60.0, "s")
     lost_timeout: float = bounded(2.0, 0.0, 600.0, "s")
+    # unlabelled keypoint candidates (the geometric camera): detection's verification
+    candidate_match_radius: float = bounded(6.0, 0.1, 100.0, "px")
+    candidate_min_verified: int = bounded(3, 0, 5)
     detector: DetectorParams = dc.field(default_factory=DetectorParams)
     tracker: KeypointTrackerParams = dc.field(default_factory=KeypointTrackerParams)
     ekf: TargetEkfParams = dc.field(default_factory=TargetEkfParams)
@@ -103,6 +115,8 @@ class EstimatorState:
     last_frame: float = float("nan")
     last_accepted: float = float("nan")
     frame_counter: float = 0.0
+    # the last frame's fused measurements (keypoint id, rectified pixel, accepted), for analysis
+    fused: tuple = ()
     status: np.ndarray = dc.field(default_factory=lambda: np.zeros(PERCEPTION_STATUS.size))
 
     def __deepcopy__(self, memo) -> "EstimatorState":
@@ -181,10 +195,11 @@ class TargetEstimator(LeafSystem):
         images = self._images(frame, lens)
         ekf = st.ekf
         accepted = rejected = 0
+        st.fused = ()
         if st.valid:
             ekf.predict(frame.stamp)
             measurements = self._track(frame, images, lens, X_WC.inverse() @ _X_WT(ekf))
-            accepted, rejected = self._fuse(ekf, measurements, X_WC, K)
+            accepted, rejected = self._fuse(st, measurements, X_WC, K)
         detected = 0
         if accepted < p.min_tracked_keypoints:
             reference = (X_WC.inverse() @ _X_WT(ekf)).rotation().matrix() \
@@ -196,17 +211,21 @@ class TargetEstimator(LeafSystem):
                 status[PERCEPTION_STATUS.slice("detections")] += 1
                 detected = 1
                 stale = not (frame.stamp - st.last_accepted <= p.reinit_after)
-                if not st.valid or (accepted == 0 and stale):
+                initialize = not st.valid or (accepted == 0 and stale)
+                if not initialize:
+                    a, r = self._fuse(st, detection[1], X_WC, K)
+                    accepted, rejected = accepted + a, rejected + r
+                    # the filter rejects every keypoint of a verified detection: the track was
+                    # lost (kept alive by wrong associations), start again from the detection
+                    initialize = a == 0 and r > 0
+                if initialize:
                     X_WT = X_WC @ detection[0]
                     ekf.initialize(frame.stamp, X_WT.translation(),
                                    X_WT.rotation().ToQuaternion().wxyz(),
                                    float(np.linalg.norm(detection[0].translation())))
                     st.valid = True
                     status[PERCEPTION_STATUS.slice("initializations")] += 1
-                    accepted += len(CORNER_IDS)
-                else:
-                    a, r = self._fuse(ekf, list(zip(CORNER_IDS, detection[1])), X_WC, K)
-                    accepted, rejected = accepted + a, rejected + r
+                    accepted += len(detection[1])
         if accepted > 0:
             st.last_accepted = frame.stamp
         if st.valid and not frame.stamp - st.last_accepted <= p.lost_timeout:
@@ -218,7 +237,7 @@ class TargetEstimator(LeafSystem):
     # --- steps ----------------------------------------------------------------------------------
     def _keypoint_tracker(self) -> KeypointTracker:
         """The keypoint tracker, built when first needed: only image frames use it (the geometric
-        source's keypoints come identified), and drawing its templates takes about 2 s."""
+        source's candidates are associated by position), and drawing its templates takes 2 s."""
         if self._tracker is None:
             self._tracker = KeypointTracker(self._pattern, self._params.tracker)
         return self._tracker
@@ -235,31 +254,76 @@ class TargetEstimator(LeafSystem):
             return [(m.id, m.uv) for m in self._keypoint_tracker().match(
                 binary, valid, lens.K_rectified, X_CT_predicted)]
         uv = lens.rectify_points(frame.keypoints)
-        return list(zip((int(i) for i in frame.keypoint_ids), uv))
+        if frame.keypoint_ids is not None:  # labelled (idealized)
+            return list(zip((int(i) for i in frame.keypoint_ids), uv))
+        return associate(uv, self._project(X_CT_predicted, lens.K_rectified),
+                         self._params.tracker.search_size / 2)
 
     def _detect(self, frame, images, lens, R_CT_reference, z_up_C, prediction=None):
-        """(X_CT, corners in rectified pixels in keypoint order) of the best detection, or None.
-        `z_up_C`: the state estimate's up in the camera frame (the platform is level)."""
+        """(X_CT, [(keypoint id, rectified pixel)]) of the best detection, or None. `z_up_C`:
+        the state estimate's up in the camera frame (the platform is level)."""
+        K = lens.K_rectified
         if images is not None:
             detections = self._detector.detect(images, R_CT_reference, z_up_C, prediction)
-            return (detections[0].X_CT, detections[0].corners) if detections else None
-        ids = list(frame.keypoint_ids)
-        if not all(i in ids for i in CORNER_IDS):
-            return None
-        corners = lens.rectify_points(frame.keypoints[[ids.index(i) for i in CORNER_IDS]])
-        X_CT = self._detector.pose(corners, lens.K_rectified, symmetric=False, z_up_C=z_up_C)
-        return None if X_CT is None else (X_CT, corners)
+            return (detections[0].X_CT, list(zip(CORNER_IDS, detections[0].corners))) \
+                if detections else None
+        uv = lens.rectify_points(frame.keypoints)
+        if frame.keypoint_ids is not None:  # labelled (idealized): the corners are known
+            ids = list(frame.keypoint_ids)
+            if not all(i in ids for i in CORNER_IDS):
+                return None
+            corners = uv[[ids.index(i) for i in CORNER_IDS]]
+            X_CT = self._detector.pose(corners, K, symmetric=False, z_up_C=z_up_C)
+            return None if X_CT is None else (X_CT, list(zip(CORNER_IDS, corners)))
+        return self.detect_candidates(uv, K, R_CT_reference, z_up_C)
 
-    def _fuse(self, ekf: TargetEkf, measurements, X_WC: RigidTransform, K) -> tuple[int, int]:
+    def detect_candidates(self, uv: np.ndarray, K: np.ndarray, R_CT_reference=None,
+                          z_up_C=None):
+        """The pattern among unlabelled candidates (rectified pixels): (X_CT, [(keypoint id,
+        pixel)] of the candidates it explains) for the best verified quad, or None. A quad is
+        verified when its corners and at least `candidate_min_verified` of the other keypoints
+        reproject within `candidate_match_radius` of a candidate; the best explains the most
+        candidates, then with the smallest mean distance."""
+        p = self._params
+        best, best_score = None, None
+        for quad in convex_quads(uv, p.detector.min_quad_area, p.candidate_min_verified):
+            X_CT = self._detector.pose(uv[quad], K, R_CT_reference, symmetric=True,
+                                       z_up_C=z_up_C)
+            if X_CT is None:
+                continue
+            matches = associate(uv, self._project(X_CT, K), p.candidate_match_radius)
+            ids = [k for k, _ in matches]
+            if not all(k in ids for k in CORNER_IDS) or \
+                    len(ids) - len(CORNER_IDS) < p.candidate_min_verified:
+                continue
+            predicted = self._project(X_CT, K)
+            error = np.mean([np.linalg.norm(z - predicted[k]) for k, z in matches])
+            score = (len(matches), -error)
+            if best_score is None or score > best_score:
+                best, best_score = (X_CT, matches), score
+        return best
+
+    def _project(self, X_CT: RigidTransform, K: np.ndarray) -> np.ndarray:
+        """Rectified pixels of the pattern's keypoints (nan behind the camera)."""
+        p_C = X_CT.multiply(self._pattern.p_TK.T).T
+        uv = p_C[:, :2] / p_C[:, 2:3] @ K[:2, :2].T + K[:2, 2]
+        uv[p_C[:, 2] <= 0.05] = np.nan
+        return uv
+
+    def _fuse(self, st: EstimatorState, measurements, X_WC: RigidTransform,
+              K) -> tuple[int, int]:
         R_WC, p_WC = X_WC.rotation().matrix(), X_WC.translation()
         accepted = rejected = 0
+        fused = []
         for k, uv in measurements:
-            prediction = ekf.keypoint(self._pattern.p_TK[k], R_WC, p_WC, K)
+            prediction = st.ekf.keypoint(self._pattern.p_TK[k], R_WC, p_WC, K)
             if prediction is None:
                 continue
-            ok, _ = ekf.update(prediction, uv)
+            ok, _ = st.ekf.update(prediction, uv)
             accepted += ok
             rejected += not ok
+            fused.append((int(k), np.asarray(uv, float), bool(ok)))
+        st.fused = st.fused + tuple(fused)
         return accepted, rejected
 
     # --- outputs --------------------------------------------------------------------------------
@@ -283,6 +347,51 @@ class TargetEstimator(LeafSystem):
 
     def _calc_status(self, context, output):
         output.SetFromVector(context.get_abstract_state(self._state).get_value().status)
+
+
+def associate(candidates: np.ndarray, predicted: np.ndarray,
+              reach: float) -> list[tuple[int, np.ndarray]]:
+    """Each predicted keypoint (rows of `predicted`, nan: not predicted) with the nearest
+    candidate within `reach` px in u and v (the keypoint tracker's search window), if any."""
+    if not len(candidates):
+        return []
+    offsets = candidates[None, :, :] - predicted[:, None, :]
+    inside = np.all(np.abs(offsets) <= reach, axis=2)
+    distances = np.where(inside, np.linalg.norm(offsets, axis=2), np.inf)
+    nearest = np.argmin(distances, axis=1)
+    return [(k, candidates[j]) for k, j in enumerate(nearest) if np.isfinite(distances[k, j])]
+
+
+def convex_quads(uv: np.ndarray, min_area: float, min_inside: int) -> np.ndarray:
+    """(M, 4) indices of the candidates' convex quadrilaterals of at least `min_area` px^2 that
+    hold at least `min_inside` other candidates, each ordered like the detector's quads
+    (keypoints 0-3 up to a cyclic shift), largest first."""
+    n = len(uv)
+    if n < 4:
+        return np.zeros((0, 4), int)
+    quads = np.array(list(itertools.combinations(range(n), 4)))
+    corners = uv[quads]
+    centre = corners.mean(axis=1, keepdims=True)
+    angle = np.arctan2(corners[..., 1] - centre[..., 1], corners[..., 0] - centre[..., 0])
+    order = np.argsort(angle, axis=1)
+    quads = np.take_along_axis(quads, order, axis=1)
+    corners = uv[quads]
+    edges = np.roll(corners, -1, axis=1) - corners
+    turns = _cross(edges, np.roll(edges, -1, axis=1))
+    # angles increase with v down: clockwise on screen, positive turns and shoelace area
+    area = 0.5 * _cross(corners, np.roll(corners, -1, axis=1)).sum(axis=1)
+    keep = np.all(turns > 0, axis=1) & (area >= min_area)
+    quads, corners, edges, area = quads[keep], corners[keep], edges[keep], area[keep]
+    inside = np.all(_cross(edges[:, :, None, :], uv[None, None, :, :] - corners[:, :, None, :])
+                    > 0, axis=1).sum(axis=1)
+    keep = inside >= min_inside
+    quads, area = quads[keep], area[keep]
+    # the detector's order: negative oriented area in image coordinates (see detector._quads)
+    return quads[np.argsort(-area)][:, ::-1]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
 def _X_WT(ekf: TargetEkf) -> RigidTransform:
