@@ -12,8 +12,9 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from alight.diagrams.world.visualization import (CAMERA_OFFSET, add_flight_view, framing,
-                                                 start_recording)
+from alight.diagrams.world.visualization import (CAMERA_OFFSET, FAR, FIT, LABEL_HEIGHT, NEAR,
+                                                 add_flight_view, framing, start_recording,
+                                                 three_js)
 from alight.systems.boundary import GROUND_TRUTH
 from alight.systems.mission.landing import MISSION_STATUS, Mode
 
@@ -44,25 +45,28 @@ def line_vertices(command: dict) -> np.ndarray:
 
 
 def test_framing_follows_the_vehicle_and_brings_the_car_in_as_it_nears():
-    p_WB = np.array([1.0, 2.0, 3.0])
+    p_WB, x = np.array([1.0, 2.0, 3.0]), np.array([1.0, 0.0, 0.0])
     np.testing.assert_array_equal(framing(p_WB, None)[0], p_WB)
-    center, zoom = framing(p_WB, p_WB + [40.0, 0.0, 0.0])  # far: the vehicle alone
+    center, back_off = framing(p_WB, p_WB + (FAR + 1.0) * x)  # far: the vehicle alone
     np.testing.assert_array_equal(center, p_WB)
-    assert zoom == 1.0
-    center, zoom = framing(p_WB, p_WB + [10.0, 0.0, -3.0])  # near: the midpoint, both in view
-    np.testing.assert_allclose(center, p_WB + [5.0, 0.0, -1.5])
-    assert zoom == 1.0
-    center, zoom = framing(p_WB, p_WB + [15.0, 0.0, 0.0])
-    np.testing.assert_allclose(center, p_WB + [7.5, 0.0, 0.0])
-    assert zoom == pytest.approx(12.0 / 15.0)
-    center, zoom = framing(p_WB, p_WB + [22.5, 0.0, 0.0])  # half way from 30 to 15 m
-    np.testing.assert_allclose(center, p_WB + [5.625, 0.0, 0.0])
-    assert zoom == 1.0  # 11.25 m framed
+    assert back_off == 1.0
+    offset = np.array([0.6 * FIT, 0.0, -0.5])  # near: the midpoint, both in view
+    center, back_off = framing(p_WB, p_WB + offset)
+    np.testing.assert_allclose(center, p_WB + offset / 2)
+    assert back_off == 1.0
+    center, back_off = framing(p_WB, p_WB + NEAR * x)
+    np.testing.assert_allclose(center, p_WB + NEAR / 2 * x)
+    assert back_off == pytest.approx(NEAR / FIT) and back_off > 1.0
+    middle = (NEAR + FAR) / 2  # half way in: half way to the midpoint
+    center, back_off = framing(p_WB, p_WB + middle * x)
+    np.testing.assert_allclose(center, p_WB + middle / 4 * x)
+    assert back_off == pytest.approx(max(1.0, middle / 2 / FIT))
+    assert framing(p_WB, p_WB + 200.0 * x)[1] == 1.0
 
 
 def motion(t: float) -> tuple[np.ndarray, np.ndarray]:
-    """p_WB climbing along x, p_WT 20 m away driving towards it along y."""
-    return np.array([t, 0.0, 1.0 + t]), np.array([0.0, 20.0 - 4 * t, 0.5])
+    """p_WB climbing along x, p_WT 20 m away driving towards it along y at 6 m/s."""
+    return np.array([t, 0.0, 1.0 + t]), np.array([0.0, 20.0 - 6 * t, 0.5])
 
 
 class Flight(LeafSystem):
@@ -100,32 +104,32 @@ def replay() -> list[dict]:
     return replay_commands(meshcat.StaticHtml())
 
 
-def test_the_replay_follows_the_framed_point_and_zooms(replay):
+def test_the_replay_follows_the_framed_point_and_backs_off(replay):
     commands = replay
     found = tracks(commands)
-    scene, zoom = found["/drake", ".position"], found["/Cameras/default/rotated/<object>", ".zoom"]
+    scene, camera = found["/drake", ".position"], found["/Cameras/default/rotated/<object>",
+                                                       ".position"]
     # Publish k at k * (1/30) s goes to frame floor(k * (1/30) * 30), as Drake's visualizer's:
     # 31 and 62 land on frames 30 and 61, after 30 and 61 (rounding, not the view).
     published = {int(np.floor(k * (1 / FPS) * FPS)): k for k in range(76)}
-    assert [key["time"] for key in scene] == [key["time"] for key in zoom] == list(published)
+    assert [key["time"] for key in scene] == [key["time"] for key in camera] == list(published)
     assert len(published) == 74
-    for key_scene, key_zoom in zip(scene, zoom):
+    for key_scene, key_camera in zip(scene, camera):
         p_WB, p_WT = motion(published[key_scene["time"]] / FPS)
-        center, expected_zoom = framing(p_WB, p_WT)
+        center, back_off = framing(p_WB, p_WT)
         np.testing.assert_allclose(key_scene["value"], -center, atol=1e-9)
-        assert key_zoom["value"] == pytest.approx(expected_zoom)
-    assert zoom[0]["value"] < 1.0 and zoom[-1]["value"] == 1.0  # 20 m, then 10 m apart
+        np.testing.assert_allclose(key_camera["value"], three_js(back_off * CAMERA_OFFSET))
+    assert framing(*motion(0.0))[1] > 1.0 and framing(*motion(2.5))[1] == 1.0  # 20, 6.3 m
     # The grid (Meshcat does not draw half spaces: the ground) moves with the scene, in cells.
     grid = np.array([key["value"] for key in found["/Grid", ".position"]])
     scene_shift = np.array([key["value"] for key in scene])
     np.testing.assert_allclose((grid - scene_shift)[:, :2],
                                np.round((grid - scene_shift)[:, :2]), atol=1e-9)
     np.testing.assert_allclose(grid[:, 2], scene_shift[:, 2])
-    # It opens on the framed point, from behind-left and above (three.js is y-up).
-    camera = [c for c in commands if c["type"] == "set_property"
-              and c["path"] == "/Cameras/default/rotated/<object>" and c["property"] == "position"]
-    assert camera[-1]["value"] == pytest.approx(
-        [CAMERA_OFFSET[0], CAMERA_OFFSET[2], -CAMERA_OFFSET[1]])
+    # It opens looking at the framed point (the origin of the shifted scene).
+    assert three_js(CAMERA_OFFSET) == [-5.0, 3.5, 5.0]  # three.js is y-up
+    targets = [c["value"] for c in commands if c["type"] == "set_target"]
+    assert targets == [[0.0, 0.0, 0.0]]
 
 
 def test_the_mode_label_shows_the_mission_mode(replay):
@@ -143,7 +147,7 @@ def test_the_mode_label_shows_the_mission_mode(replay):
                    and c["path"].endswith("mode/TAKING_OFF"))["object"]["object"]
     assert texture["resources"]["TAKING_OFF.png"].startswith("data:image/png;base64,")
     label = found["/drake/flight_view/mode", ".position"]
-    np.testing.assert_allclose(label[-1]["value"], [2.5, 0.0, 4.4])  # 0.9 m above the vehicle
+    np.testing.assert_allclose(label[-1]["value"], [2.5, 0.0, 3.5 + LABEL_HEIGHT])  # above it
 
 
 def test_the_paths_are_lines_shown_piece_by_piece(replay):

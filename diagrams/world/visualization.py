@@ -2,7 +2,7 @@
 
 `add_meshcat_visualizer` draws the scene's illustration geometry. `add_flight_view` adds a
 `FlightView`: the view follows the vehicle and the car (the scene is shifted so that their
-midpoint stays in front of the camera, zoomed out as they part), their paths drawn as lines, the
+midpoint stays in front of the camera, which backs off as they part), their paths drawn as lines, the
 mission's mode as a label above the vehicle. Everything it sets is also recorded (Meshcat
 animations hold transforms and properties, not objects: the paths are drawn in one-second pieces
 shown from their end, the labels are textured planes made visible in turn), so a replay opens
@@ -46,27 +46,31 @@ def write_recording(meshcat: Meshcat, filename: str | Path) -> Path:
 SCENE = "/drake"
 PATHS = "/drake/flight_view/paths"
 MODE = "/drake/flight_view/mode"
-ZOOM = "/Cameras/default/rotated/<object>"
+CAMERA = "/Cameras/default/rotated/<object>"
 GRID = "/Grid"
 GRID_CELL = 1.0                                # m: the grid is moved by whole cells
-CAMERA_OFFSET = np.array([-9.0, -9.0, 6.0])    # m, from the framed point (behind-left, above)
-FIT = 12.0          # m: the vehicle-car distance the camera frames at zoom 1
+CAMERA_OFFSET = np.array([-5.0, -5.0, 3.5])    # m, from the framed point (behind-left, above)
+FIT = 8.0           # m: the vehicle-car distance framed from CAMERA_OFFSET (farther: backed off)
 NEAR, FAR = 15.0, 30.0  # m: the car is framed with the vehicle from FAR in, fully from NEAR
-MIN_ZOOM = 0.3
-LABEL_HEIGHT = 0.9  # m above the vehicle
+LABEL_HEIGHT = 0.7  # m above the vehicle
+LABEL_SIZE = (1.6, 0.2)  # m, width and height (the texture's 8:1)
 COLORS = {"vehicle": Rgba(0.1, 0.3, 0.9, 1.0), "target": Rgba(0.9, 0.4, 0.0, 1.0)}
 
 
 def framing(p_WB: np.ndarray, p_WT: np.ndarray | None) -> tuple[np.ndarray, float]:
-    """The framed point and the camera's zoom: the vehicle at zoom 1 while the car is absent or
-    more than FAR away; from NEAR in, their midpoint, zoomed out (to MIN_ZOOM at most) while they
-    are more than FIT apart; in between, a blend of the two."""
+    """The framed point and how far the camera backs off (CAMERA_OFFSET times it): the vehicle
+    from 1 while the car is absent or more than FAR away; from NEAR in, their midpoint, backed
+    off while they are more than FIT apart; in between, a blend of the two."""
     if p_WT is None:
         return p_WB.copy(), 1.0
     distance = float(np.linalg.norm(p_WB - p_WT))
     weight = float(np.clip((FAR - distance) / (FAR - NEAR), 0.0, 1.0))
-    zoom = float(np.clip(FIT / max(weight * distance, 1e-9), MIN_ZOOM, 1.0))
-    return p_WB + weight * (p_WT - p_WB) / 2, zoom
+    return p_WB + weight * (p_WT - p_WB) / 2, max(1.0, weight * distance / FIT)
+
+
+def three_js(p_W: np.ndarray) -> list[float]:
+    """A point of Drake's z-up world in three.js's y-up coordinates (the camera's properties)."""
+    return [float(p_W[0]), float(p_W[2]), float(-p_W[1])]
 
 
 class FlightView(LeafSystem):
@@ -74,8 +78,8 @@ class FlightView(LeafSystem):
 
     Input `ground_truth` (GROUND_TRUTH): the vehicle p_WB, the car p_WT when `target_present`.
     Input `status` (`status_layout`): its field `mode_field` is the mode shown, named by `modes`.
-    Every `period` the scene (/drake) is shifted by minus the framed point and the camera zoomed
-    (`framing`); every `path_period` the paths get a point, a piece closing every `piece` s; the
+    Every `period` the scene (/drake) is shifted by minus the framed point and the camera, looking
+    at it, backed off (`framing`); every `path_period` the paths get a point, a piece closing every `piece` s; the
     label of the current mode is the one visible. What has been drawn (the open path pieces, the
     mode shown) is kept by the system, as MeshcatVisualizer keeps what it has sent, not in the
     context: it describes the browser's scene, not the simulation."""
@@ -114,12 +118,12 @@ class FlightView(LeafSystem):
     def _frame(self, context):
         t = context.get_time()
         p_WB, p_WT = self._positions(context)
-        center, zoom = framing(p_WB, p_WT)
+        center, back_off = framing(p_WB, p_WT)
         self._meshcat.SetTransform(SCENE, RigidTransform(-center), t)
         grid = GRID_CELL * np.round(center / GRID_CELL)
         grid[2] = 0.0
         self._meshcat.SetTransform(GRID, RigidTransform(grid - center), t)
-        self._meshcat.SetProperty(ZOOM, "zoom", zoom, t)
+        self._meshcat.SetProperty(CAMERA, "position", three_js(back_off * CAMERA_OFFSET), t)
         self._meshcat.SetTransform(MODE, RigidTransform(p_WB + [0, 0, LABEL_HEIGHT]), t)
         mode = self._modes(int(round(self._status_layout.get(self._status.Eval(context),
                                                              self._mode_field))))
@@ -151,16 +155,19 @@ def _draw_labels(meshcat: Meshcat, modes: type[enum.IntEnum]) -> None:
     right = np.cross(forward, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     up = np.cross(right, forward)
+    width, height = LABEL_SIZE
+    corners = [s * width / 2 * right + u * height / 2 * up for s, u in
+               ((-1, -1), (1, -1), (1, 1), (-1, 1))]
     with tempfile.TemporaryDirectory() as folder:
         for mode in modes:
-            image = np.full((64, 512, 3), 255, np.uint8)
-            cv2.putText(image, mode.name, (12, 46), cv2.FONT_HERSHEY_SIMPLEX, 1.4, (0, 0, 0), 3,
-                        cv2.LINE_AA)
+            image = np.zeros((64, 512, 3), np.uint8)
+            cv2.putText(image, mode.name, (14, 48), cv2.FONT_HERSHEY_DUPLEX, 1.5,
+                        (255, 255, 255), 3, cv2.LINE_AA)
             cv2.imwrite(str(Path(folder) / f"{mode.name}.png"), image)
-            corners = [s * 1.0 * right + u * 0.125 * up for s, u in
-                       ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+            # Self-lit (emissive map): readable whatever the lights.
             (Path(folder) / f"{mode.name}.mtl").write_text(
-                f"newmtl label\nKa 1 1 1\nKd 1 1 1\nmap_Kd {mode.name}.png\n")
+                f"newmtl label\nKa 1 1 1\nKd 1 1 1\nKe 1 1 1\nmap_Kd {mode.name}.png\n"
+                f"map_Ke {mode.name}.png\n")
             (Path(folder) / f"{mode.name}.obj").write_text(
                 f"mtllib {mode.name}.mtl\n"
                 + "".join(f"v {x:.4f} {y:.4f} {z:.4f}\n" for x, y, z in corners)
