@@ -15,8 +15,9 @@ VEHICLE = VehicleModel()
 HOVER_THRUST = float(VEHICLE.curve.thrust(VEHICLE.mass * GRAVITY))
 
 
-def falling(v_z: float, valid: float = 1.0) -> np.ndarray:
-    return STATE_ESTIMATE.vector(p_EB=[0.0, 0.0, 5.0], v_EB=[0.0, 0.0, v_z], valid=valid)
+def falling(v_z: float, valid: float = 1.0, z: float = 5.0, speed_std: float = 0.0) -> np.ndarray:
+    return STATE_ESTIMATE.vector(p_EB=[0.0, 0.0, z], v_EB=[0.0, 0.0, v_z], valid=valid,
+                                 var_pv=[0.0] * 3 + [speed_std ** 2] * 3)
 
 
 def reference(p=(0.0, 0.0, 5.0), v=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -26,8 +27,9 @@ def reference(p=(0.0, 0.0, 5.0), v=(0.0, 0.0, 0.0)) -> np.ndarray:
 class FailsafeBench:
     """The failsafe controller as `dut`, active from a hover command; `max_descent_time` 2 s."""
 
-    def __init__(self):
-        self.dut = FailsafeController(VEHICLE, FailsafeParams(max_descent_time=2.0), 0.01)
+    def __init__(self, max_descent_time: float = 2.0):
+        self.dut = FailsafeController(VEHICLE, FailsafeParams(max_descent_time=max_descent_time),
+                                      0.01)
         self.context = self.dut.CreateDefaultContext()
         self.simulator = Simulator(self.dut, self.context)
         self.dut.GetInputPort("reference").FixValue(self.context, reference())
@@ -67,6 +69,37 @@ def test_without_an_estimate_the_timer_counts_from_the_last_usable_one():
     armed = bench.armed_for(falling(-1.0, valid=0.0), 4.0)
     assert armed == pytest.approx(2.0, abs=0.015)                      # then 2 s without one
     assert FC_COMMAND.get(bench.command(), "arm") == 0.0
+
+
+def test_an_estimate_lost_during_the_descent_and_back_on_the_ground_ends_it():
+    """Issue 21 fault campaign: the estimate lost at the hand-over for longer than the descent
+    (10 s) came back on the ground, where it never saw a descending speed: the failsafe stayed
+    armed at 95 % of hover thrust for good. 4.7 m below the height seen before the hand-over
+    is a descent."""
+    bench = FailsafeBench(max_descent_time=60.0)
+    bench.dut.GetInputPort("active").FixValue(bench.context, [0.0])
+    bench.armed_for(falling(0.0), 0.1)                            # hovering at 5 m, inactive
+    bench.dut.GetInputPort("active").FixValue(bench.context, [1.0])
+    assert bench.armed_for(falling(0.0, valid=0.0), 10.0) == pytest.approx(10.0)
+    armed = bench.armed_for(falling(0.0, z=0.3), 2.0)
+    assert armed == pytest.approx(0.5, abs=0.015)             # quiet for touchdown_time
+    # Back 0.2 m lower, at rest: it may be hovering, so it stays armed.
+    bench = FailsafeBench(max_descent_time=60.0)
+    bench.dut.GetInputPort("active").FixValue(bench.context, [0.0])
+    bench.armed_for(falling(0.0), 0.1)
+    bench.dut.GetInputPort("active").FixValue(bench.context, [1.0])
+    bench.armed_for(falling(0.0, valid=0.0), 10.0)
+    assert bench.armed_for(falling(0.0, z=4.8), 2.0) == pytest.approx(2.0)
+
+
+def test_an_estimate_too_noisy_to_tell_a_touchdown_counts_as_none():
+    """A vertical speed with a 2 m/s standard deviation (the campaign's estimator noise) never
+    stays quiet: the timer stands in for it (2 s here), as without an estimate; 0.3 m/s is
+    usable."""
+    bench = FailsafeBench()
+    assert bench.armed_for(falling(0.0, speed_std=2.0), 4.0) == pytest.approx(2.0, abs=0.015)
+    bench = FailsafeBench()
+    assert bench.armed_for(falling(0.0, speed_std=0.3), 4.0) == pytest.approx(4.0)
 
 
 def test_the_descent_starts_from_the_mass_the_commands_held_not_from_the_last_one():

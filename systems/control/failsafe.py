@@ -13,18 +13,22 @@ of that mass, decreasing at `thrust_decrease_rate` (fraction of the hover force 
 to `descent_fraction` of it: a moderate, drag-limited descent that stops the vehicle from
 accelerating in any direction.
 
-Touchdown, then disarm: when the state estimate is valid, the vehicle is on the ground once it has
-been seen descending (faster than `descent_speed`) and its vertical speed (low-passed over
-`speed_filter_time`) then stays below `touchdown_speed` for `touchdown_time`, however long the
-descent takes. Only while there is no usable estimate does a timer stand in for it: the vehicle
-is taken to be down once `max_descent_time` has passed without one (since the activation or the
-last usable estimate). It then commands zero thrust and arm = 0.
+Touchdown, then disarm: when the state estimate is usable (valid, and its vertical speed's
+standard deviation within `max_speed_std`: a speed noisier than that cannot tell a touchdown),
+the vehicle is on the ground once it has been seen descending and its vertical speed (low-passed
+over `speed_filter_time`) then stays below `touchdown_speed` for `touchdown_time`, however long
+the descent takes. Seen descending: faster than `descent_speed`, or `descent_height` below where
+the estimate last saw it before the hand-over (same estimator frame): an estimate lost during
+the descent and back on the ground saw no speed, but the vehicle is lower. Only while there is
+no usable estimate does a timer stand in for it: the vehicle is taken to be down once
+`max_descent_time` has passed without one (since the activation or the last usable estimate).
+It then commands zero thrust and arm = 0.
 """
 import dataclasses as dc
 
 import numpy as np
 
-from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, VectorLayout
+from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, VectorLayout, estimate_is_valid
 from alight.systems.control.controller import (Controller, ControllerReason, command_is_usable,
                                                level_command, status_vector)
 from alight.systems.control.force_controller import VehicleModel
@@ -45,6 +49,8 @@ class FailsafeParams:
     speed_filter_time: float = bounded(0.2, 0.0, 10.0, "s")  # low-pass on the estimated v_z
     max_descent_time: float = bounded(60.0, 1.0, 3600.0, "s")  # without a usable estimate
     mass_filter_time: float = bounded(2.0, 0.0, 60.0, "s")     # m_e: M(34) low-passed (0: last)
+    max_speed_std: float = bounded(0.5, 0.01, 100.0, "m/s")  # usable estimate's v_z std
+    descent_height: float = bounded(0.5, 0.05, 100.0, "m")   # below the hand-over: descended
 
 
 _STATE = VectorLayout("failsafe_state", [
@@ -68,6 +74,8 @@ class FailsafeController(Controller):
         self._state = self.DeclareDiscreteState(np.zeros(_STATE.size))
         # m_e: the issued commands' M(34) low-passed while inactive (NaN before a flying one).
         self._mass_seen = self.DeclareDiscreteState([np.nan])
+        # [z, frame counter] of the last usable estimate before the hand-over (NaN: none).
+        self._height_seen = self.DeclareDiscreteState([np.nan, np.nan])
         self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
 
     def flying_mass(self, command: np.ndarray) -> float:
@@ -88,9 +96,19 @@ class FailsafeController(Controller):
                 return float(mass)
         return self._vehicle.mass
 
+    def usable(self, estimate) -> bool:
+        """A valid estimate (not None) whose vertical speed can tell a touchdown."""
+        return estimate is not None and \
+            STATE_ESTIMATE.get(estimate, "var_pv")[5] <= self._p.max_speed_std ** 2
+
     def _update_inactive(self, context, discrete_state) -> None:
-        """Status INACTIVE; the issued command's mass into m_e."""
+        """Status INACTIVE; the issued command's mass into m_e; the height last seen."""
         super()._update_inactive(context, discrete_state)
+        estimate = self._estimate.Eval(context)
+        if estimate_is_valid(estimate) and self.usable(estimate):
+            discrete_state.set_value(self._height_seen, [
+                STATE_ESTIMATE.get(estimate, "p_EB")[2],
+                STATE_ESTIMATE.get(estimate, "frame_counter")])
         mass = self.flying_mass(self._last.Eval(context))
         if np.isnan(mass):
             return
@@ -117,7 +135,8 @@ class FailsafeController(Controller):
         S = _STATE
         x = discrete_state.get_value(self._state).copy()   # as `_activate` may have left it
         if x[S.slice("touched_down")][0] < 0.5:
-            self._detect_touchdown(x, estimate, now)
+            self._detect_touchdown(x, estimate if self.usable(estimate) else None, now,
+                                   context.get_discrete_state(self._height_seen).get_value())
         touched_down = x[S.slice("touched_down")][0] > 0.5
         if touched_down:
             force, arm = 0.0, 0.0
@@ -134,8 +153,9 @@ class FailsafeController(Controller):
         discrete_state.set_value(self._status, status_vector(
             ControllerReason.TOUCHDOWN if touched_down else ControllerReason.OK))
 
-    def _detect_touchdown(self, x: np.ndarray, estimate, now: float) -> None:
-        """`estimate`: None when it is not valid."""
+    def _detect_touchdown(self, x: np.ndarray, estimate, now: float, seen: np.ndarray) -> None:
+        """`estimate`: None when it is not usable; `seen`: [z, frame counter] before the
+        hand-over."""
         S = _STATE
         if estimate is None:
             if now - x[S.slice("estimate_time")][0] > self._p.max_descent_time:
@@ -146,7 +166,9 @@ class FailsafeController(Controller):
         v_z = x[S.slice("v_z")][0] + alpha * (STATE_ESTIMATE.get(estimate, "v_EB")[2]
                                               - x[S.slice("v_z")][0])
         x[S.slice("v_z")] = v_z
-        if v_z < -self._p.descent_speed:
+        lower = STATE_ESTIMATE.get(estimate, "frame_counter") == seen[1] \
+            and STATE_ESTIMATE.get(estimate, "p_EB")[2] < seen[0] - self._p.descent_height
+        if v_z < -self._p.descent_speed or lower:
             x[S.slice("descended")] = 1.0
         quiet = x[S.slice("descended")][0] > 0.5 and abs(v_z) < self._p.touchdown_speed
         x[S.slice("quiet_time")] = x[S.slice("quiet_time")][0] + self._period if quiet else 0.0
