@@ -183,3 +183,27 @@ def test_a_recorded_landing_has_the_view(tmp_path):
     assert len(found["/drake", ".position"]) >= 60
     assert meshcat.HasPath("/drake/flight_view/paths/vehicle/1")
     assert meshcat.HasPath("/drake/flight_view/paths/target/1")
+
+
+def test_the_mission_api_and_a_hover_label_their_modes(tmp_path):
+    """`alight fly`'s Mission labels the UAV manager's phase; a stack without a mission (hover)
+    the flight controller's mode."""
+    from alight.diagrams.running.mission import Mission
+    from alight.diagrams.running.runner import run
+    from alight.diagrams.scenario import load_scenario
+    mission = Mission.simulated(seed=1, run_dir=tmp_path / "fly", meshcat=Meshcat(),
+                                record=tmp_path / "fly.html", strict=False)
+    with mission:
+        assert mission.takeoff(1.0).done
+    found = tracks(replay_commands((tmp_path / "fly.html").read_text()))
+    shown = {path.rsplit("/", 1)[1]: [key["value"] for key in keys]
+             for (path, track), keys in found.items()
+             if path.startswith("/drake/flight_view/mode/") and track == ".visible"}
+    assert shown["IDLE"][:2] == [True, False] and shown["TAKING_OFF"] == [False, True, False]
+    assert shown["FLYING"] == [False, True]
+    run(load_scenario("hover"), run_dir=tmp_path / "hover", meshcat=Meshcat(),
+        record=tmp_path / "hover.html", command="hover", duration=1.0)
+    found = tracks(replay_commands((tmp_path / "hover.html").read_text()))
+    assert {path.rsplit("/", 1)[1] for path, _ in found
+            if path.startswith("/drake/flight_view/mode/")} == {
+                "DISARMED", "ATTITUDE_THRUST", "RATES_THRUST", "FAILSAFE_DESCENT"}

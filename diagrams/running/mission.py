@@ -37,6 +37,7 @@ from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import RunLog, open_run_folder, write_run_folder
 from alight.diagrams.running.simulation import evaluate, finish_recording, start_simulation
 from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.world.visualization import add_flight_view
 from alight.hw.channel_odometry import channel_odometry
 from alight.hw.frame_channel import FrameSubscriber
 from alight.hw.hil import MissionUnavailable
@@ -47,7 +48,8 @@ from alight.hw.realtime import Pacer, WallClock
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.managers.constraint_manager import (CONSTRAINT_STATUS, GroupRefusal,
                                                         load_constraint_manager_params)
-from alight.systems.managers.uav_manager import UAV_STATUS, Routine, UavCommand, UavRefusal
+from alight.systems.managers.uav_manager import (UAV_STATUS, Phase, Routine, UavCommand,
+                                                UavRefusal)
 from alight.systems.sensors.mocap import MocapParams
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.trajectory_generation import (load_trajectory_generation_params,
@@ -102,7 +104,8 @@ class Mission:
         """The managed stack on the simulated vehicle (`stack`: arguments of
         `add_managed_onboard`, e.g. odometry, schedule, config, uav_params; `managed_stack`
         fills in the ones not given, odometry mocap); `log(builder, loggers)` may add streams;
-        with `meshcat` and `record` (FILE.html) the replay is written on `close`."""
+        with `meshcat` the flight view labels the UAV manager's phase, and with `record`
+        (FILE.html) the replay is written on `close`."""
         vehicle_config = vehicle_config or SimVehicleConfig()
         stack = managed_stack(stack, odometry=lambda: mocap_odometry(MocapParams()))
         builder = DiagramBuilder()
@@ -110,6 +113,9 @@ class Mission:
         onboard = add_managed_onboard(builder, vehicle, **stack)
         if log is not None:
             log(builder, onboard.loggers)
+        if meshcat is not None:
+            add_flight_view(builder, meshcat, vehicle.GetOutputPort("ground_truth"),
+                            onboard.uav.GetOutputPort("uav_status"), UAV_STATUS, "phase", Phase)
         diagram = builder.Build()
         simulator = start_simulation(diagram, seed, meshcat, record, realtime_rate)
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir("mission", seed)
