@@ -5,6 +5,7 @@ from dataclasses import replace as dc_replace
 
 import numpy as np
 import pytest
+from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.primitives import ConstantVectorSource
 from scipy.signal import cont2discrete
@@ -16,6 +17,7 @@ from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND,
 from alight.systems.control.linear_model import (continuous_model, discretize,
                                                  euler_pitch_roll_yaw)
 from alight.systems.control.linear_mpc import LinearMpc, LinearMpcQp, MpcReason
+from alight.systems.control.persistent_daqp import PersistentDaqp
 from alight.systems.control.persistent_osqp import QpResult
 from alight.systems.plant.wind import WindParams
 from alight.systems.sensors.estimate_faults import EstimateFaultParams, EstimateFaults
@@ -83,6 +85,50 @@ def test_persistent_osqp_solves_the_same_program_as_drakes_osqp():
             assert result.ok, name
             u[name] = qp.inputs(result)
         np.testing.assert_allclose(u["persistent"], u["drake"], atol=2e-3)
+
+
+def test_daqp_solves_the_same_program_as_clarabel_also_with_violated_soft_constraints():
+    """The DAQP option (slacks regularized by 1e-3) against an interior-point solve of the same
+    MathematicalProgram, over consecutive warm-started ticks, two of them far beyond the velocity
+    and tilt limits so that slacks and the hard tilt bound are active."""
+    params = dc_replace(load_linear_mpc(), solver="daqp")
+    qp = LinearMpcQp(load_linear_model(), params)
+    N = params.horizon_steps
+    rng = np.random.default_rng(2)
+    states = [rng.normal(0.0, [2, 2, 1, 2, 2, 1, 0.2, 0.2, 0.5, 0.5]) for _ in range(4)]
+    states[1][3], states[1][6] = 15.0, np.radians(45.0)
+    states[2][0], states[2][4] = -40.0, -9.0
+    slack_seen = 0.0
+    for x0 in states:
+        qp.update(x0, np.zeros(N * 10), np.zeros(N * 3), np.array([0.05, -0.05, 0.0]))
+        result = qp.solve()
+        assert result.ok and result.status == 1
+        exact = ClarabelSolver().Solve(qp.prog)
+        assert exact.is_success()
+        np.testing.assert_allclose(qp.inputs(result), exact.GetSolution(qp.u).reshape(N, 3),
+                                   atol=1e-5)
+        slack_seen = max(slack_seen, qp.slacks(result).max())
+    assert slack_seen > 1.0
+
+
+def test_daqp_reports_a_solve_cut_by_its_iteration_limit():
+    params = dc_replace(load_linear_mpc(), solver="daqp")
+    qp = LinearMpcQp(load_linear_model(), params)
+    qp.persistent.solver.settings = {"iter_limit": 2}
+    x0 = np.zeros(10)
+    x0[3], x0[6] = 15.0, np.radians(45.0)  # many constraints enter the active set
+    qp.update(x0, np.zeros(params.horizon_steps * 10), np.zeros(params.horizon_steps * 3))
+    result = qp.solve()
+    assert not result.ok and result.status < 0 and result.iterations == 2
+
+
+def test_daqp_backend_refuses_a_program_that_is_not_a_qp():
+    prog = MathematicalProgram()
+    x = prog.NewContinuousVariables(2)
+    prog.AddQuadraticCost(np.eye(2), np.zeros(2), x)
+    prog.AddConstraint(x[0] * x[1] >= 1.0)
+    with pytest.raises(ValueError, match="QPs only"):
+        PersistentDaqp(prog)
 
 
 def _mpc_context():

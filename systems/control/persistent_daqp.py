@@ -10,9 +10,10 @@ constraints.
 
 DAQP needs a positive-definite Hessian. A variable without curvature of its own (an exact-penalty
 slack, L(25)) gets `regularization` on its Hessian diagonal: its cost lambda s becomes
-lambda s + regularization/2 s^2. Such a variable with a positive linear cost starts at its lower
-bound (the initial active set), where the penalty keeps it unless a soft constraint is violated.
-A solve that does not reach an optimum (iteration limit, cycling) is reported, never used.
+lambda s + regularization/2 s^2. The workspace solves once at construction with the program's
+data then, so that the first tick starts from an active set with the slacks at their bounds
+(from scratch, DAQP adds them one by one: 7 N + 1 iterations at horizon N). A solve that does not
+reach an optimum (iteration limit, cycling) is reported, never used.
 """
 import daqp
 import numpy as np
@@ -22,7 +23,7 @@ from alight.systems.control.program_qp import ProgramQp, QpResult
 
 OPTIMAL = 1       # DAQP exit flag of an optimal solution
 BIG = 1e30        # DAQP's bound for "none"
-ACTIVE, LOWER, IMMUTABLE = 1, 2, 4  # DAQP constraint sense bits
+ACTIVE, IMMUTABLE = 1, 4  # DAQP constraint sense bits: an equality is both
 
 
 class PersistentDaqp:
@@ -43,8 +44,6 @@ class PersistentDaqp:
         lower, upper = self._bounds()
         sense = np.zeros(len(upper), np.int32)
         sense[n:][lower[n:] == upper[n:]] = ACTIVE | IMMUTABLE
-        starts_low = flat & (self.qp.q() > 0) & (lower[:n] > -BIG)
-        sense[:n][starts_low] = ACTIVE | LOWER
         self.solver = daqp.Model()
         self.solver.settings = {"iter_limit": iter_limit, "eps_prox": 0.0}
         flag, _ = self.solver.setup(H, self.qp.q(), np.ascontiguousarray(self.qp.A[self._general]),
@@ -52,6 +51,7 @@ class PersistentDaqp:
         if flag < 0:
             raise ValueError(f"DAQP setup failed (exit flag {flag}): the Hessian with "
                              f"regularization {regularization} is not positive definite")
+        self.solver.solve()  # the initial active set (see the module docstring)
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """DAQP's bounds: the simple bounds of every variable, then the general rows."""
