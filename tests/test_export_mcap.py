@@ -131,3 +131,29 @@ def test_a_damaged_or_missing_stream_is_an_error_naming_it(landing_run, tmp_path
                                                    r"'target_estimate'\): missing"):
         export_mcap(run_dir, out)
     assert not out.exists()
+
+
+def test_an_unfinished_run_exports_what_was_flushed(landing_run, tmp_path):
+    """A run that died: its streams only as Arrow streams (cut to 3 s), metadata incomplete."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    run_dir = shutil.copytree(landing_run.path, tmp_path / "land")
+    metadata = json.loads((run_dir / "metadata.json").read_text())
+    metadata["complete"] = False
+    (run_dir / "metadata.json").write_text(json.dumps(metadata))
+    for parquet in run_dir.glob("*.parquet"):
+        table = pq.read_table(parquet)
+        table = table.filter(pa.compute.less_equal(table["time"], 3.0))
+        with pa.OSFile(str(parquet.with_suffix(".arrows")), "wb") as sink:
+            with pa.ipc.new_stream(sink, table.schema) as writer:
+                writer.write_table(table)
+        parquet.unlink()
+    with pytest.warns(UserWarning, match="the run did not finish"):
+        out = export_mcap(run_dir)
+    with out.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    by_topic = {summary.channels[channel].topic: count for channel, count
+                in summary.statistics.channel_message_counts.items()}
+    truth = landing_run["ground_truth"]
+    assert by_topic["/ground_truth"] == by_topic["/poses/vehicle"] == int(
+        (truth["time"] <= 3.0).sum()) == 301
