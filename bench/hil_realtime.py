@@ -89,7 +89,7 @@ def run_pair(mission: str, follow: bool, autopilot_prefix: str, hil_prefix: str,
     hil_args, autopilot_args = MISSIONS[mission]
     port = free_udp_port()
     hil = Side([*cli(hil_prefix), "hil", "--connect", f"udp:127.0.0.1:{port}", "--wait", "60",
-                "--mission", mission, *hil_args, *(["--follow-autopilot-clock"] if follow else []),
+                "--mission", mission, *hil_args, *(["--follow-autopilot-clock"] if follow else ["--no-follow-autopilot-clock"]),
                 "--run-dir", str(folder / "hil")], "waiting for the autopilot")
     if not hil.ready.wait(90):
         hil.stop()

@@ -250,9 +250,12 @@ class MavlinkEndpoint:
         return True
 
     def _timesync(self, message, now: float) -> None:
-        """Answers a TIMESYNC request (tc1 = 0) with this end's clock; passes replies on."""
+        """Answers a TIMESYNC request (tc1 = 0) with this end's clock (not while it has none:
+        a simulated autopilot before its simulation starts); passes replies on."""
         if message.tc1 == 0:
-            self.send(self._encoder.timesync_encode(self.clock_ns(), message.ts1))
+            clock_ns = self.clock_ns()
+            if clock_ns is not None:
+                self.send(self._encoder.timesync_encode(clock_ns, message.ts1))
         else:
             self._timesync_reply(message, now)
 
@@ -271,7 +274,8 @@ class MavlinkEndpoint:
         """Handles a valid message; False when its content was unusable (counted as rejected)."""
         raise NotImplementedError
 
-    def clock_ns(self) -> int:
+    def clock_ns(self) -> int | None:
+        """This end's clock [ns] for TIMESYNC answers; None: no clock yet."""
         raise NotImplementedError
 
     @staticmethod

@@ -104,14 +104,16 @@ class HilResult:
 def run_hil(connect: str, scenario: Scenario, params: MavlinkVehicleParams,
             duration: float | None = None, run_dir=None,
             frame_address: str | None = None, wait: float = 10.0,
-            realtime_rate: float = 1.0, follow_autopilot_clock: bool = False,
+            realtime_rate: float = 1.0, follow_autopilot_clock: bool | None = None,
             down_camera: str | None = None) -> HilResult:
     """Connects, waits for the autopilot (heartbeat and TIMESYNC), asks for the telemetry rates,
     flies the scenario's onboard stack in real time (seeded by its `random_seed`) and writes
     the run folder (with the scenario's scenario.yaml). `realtime_rate` below 1 only
     against a simulated autopilot slowed to the same rate. `follow_autopilot_clock` (simulated
     autopilots only) paces the onboard diagram on the autopilot's clock as well as the wall
-    clock, so that a simulation that falls behind real time slows the onboard side with it.
+    clock, so that a simulation that falls behind real time slows the onboard side with it;
+    None (default): when the autopilot says its vehicle is simulated (HEARTBEAT's
+    MAV_MODE_FLAG_HIL_ENABLED, `AutopilotState.simulated`).
     `down_camera` (an OpenCV device, e.g. "/dev/video0") feeds `down_image` from a real camera
     calibrated as the scenario's `vehicle.down_camera`."""
     check_mission(scenario, frame_address)
@@ -135,8 +137,14 @@ def run_hil(connect: str, scenario: Scenario, params: MavlinkVehicleParams,
         open_run_folder(run_dir, onboard.loggers, diagram, metadata)  # written as it flies
         write_scenario(run_dir, scenario)
         LOG.info("hil: %s stack built; waiting for the autopilot on %s", stack, connect)
-        link.wait_for_autopilot(wait)
+        autopilot = link.wait_for_autopilot(wait)
         rates = link.request_message_rates()
+        if follow_autopilot_clock is None:
+            follow_autopilot_clock = autopilot.simulated
+            LOG.info("hil: the autopilot's vehicle is %s: %s", "simulated" if
+                     follow_autopilot_clock else "real", "following its clock"
+                     if follow_autopilot_clock else "on the wall clock alone")
+        metadata["follow_autopilot_clock"] = follow_autopilot_clock
         if follow_autopilot_clock:
             link.follow_autopilot_clock()
 

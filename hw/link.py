@@ -95,6 +95,12 @@ class AutopilotState:
         return self.custom_mode == px4.OFFBOARD
 
     @property
+    def simulated(self) -> bool:
+        """HEARTBEAT's MAV_MODE_FLAG_HIL_ENABLED: the vehicle is simulated (PX4 with SYS_HITL = 1,
+        `alight sim-autopilot`)."""
+        return bool(self.base_mode & mavlink.MAV_MODE_FLAG_HIL_ENABLED)
+
+    @property
     def landed(self) -> bool:
         return self.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
 

@@ -1,6 +1,10 @@
 """The real-time runner: advances a diagram against the wall clock (Drake `Simulator` with a target
 real-time rate of 1), reports overruns, and stops cleanly on Ctrl-C or SIGTERM, always finishing
 with the vehicle's final safe command (disarm on the ground, failsafe descent in the air).
+
+A run that cannot keep real time says so once per `warn_period` of wall time, with the rate it
+achieved over that period (simulated s per wall s) and how far behind it is, instead of a line per
+late tick.
 """
 import dataclasses as dc
 import logging
@@ -105,6 +109,34 @@ class Pacer:
             time.sleep(0.0005)
 
 
+class LagReporter:
+    """Counts the ticks that end late and, every `period` s of wall time in which some did, logs
+    one warning with the achieved real-time rate over that period and the lag."""
+
+    def __init__(self, rate: float, period: float, tolerance: float):
+        self._rate, self._period, self._tolerance = rate, period, tolerance
+        self._window_start: tuple[float, float] | None = None  # (wall, sim) at its start
+        self._late = 0
+        self.warnings = 0
+
+    def tick(self, t: float, lag: float, wall: float) -> bool:
+        """Records a tick ending at simulated `t`, `lag` s behind; True when it was late."""
+        if self._window_start is None:
+            self._window_start = (wall, t)
+        late = lag > self._tolerance
+        self._late += late
+        start_wall, start_t = self._window_start
+        if wall - start_wall >= self._period:
+            if self._late:
+                self.warnings += 1
+                LOG.warning("not keeping real time: %.2f x real time over the last %.1f s "
+                            "(target %.2f), %d late ticks, %.0f ms behind at t = %.1f s",
+                            (t - start_t) / (wall - start_wall), wall - start_wall, self._rate,
+                            self._late, 1e3 * lag, t)
+            self._window_start, self._late = (wall, t), 0
+        return late
+
+
 class _StopRequest:
     """Ctrl-C (SIGINT) and SIGTERM set a flag that the loop reads between ticks. An exception
     raised from the signal handler would surface inside a Python system called by Drake's C++
@@ -122,12 +154,17 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
                  safe_stop: Callable[[], str] | None = None, tick: float = 0.01,
                  overrun_tolerance: float = 0.02, simulator: Simulator | None = None,
                  pace: Callable[[], float] | None = None, pace_stall: float = 1.0,
-                 stop_when: Callable | None = None) -> tuple[Simulator, RealtimeReport]:
+                 stop_when: Callable | None = None, warn_period: float = 5.0,
+                 start_when: Callable[[], bool] | None = None
+                 ) -> tuple[Simulator, RealtimeReport]:
     """Runs `diagram` in real time (at `clock.rate`) until `duration` (None: until Ctrl-C /
     SIGTERM) or until `stop_when(root_context)` is true after a tick (the mission is done).
 
     Each `tick` of diagram time is one `AdvanceTo`; a tick that ends more than
-    `overrun_tolerance` behind the wall clock is an overrun (logged, counted). Whatever ends the
+    `overrun_tolerance` behind the wall clock is an overrun (counted; one warning with the
+    achieved rate per `warn_period` s of wall time that had any). `start_when` (optional) holds
+    the start (time 0 of the diagram and of the clock) until it returns true, polled every 10 ms;
+    Ctrl-C / SIGTERM while waiting ends the run before it starts. Whatever ends the
     run (the duration, Ctrl-C, SIGTERM, an exception), `safe_stop()` runs last and its answer is
     reported; an exception is re-raised after it.
 
@@ -141,9 +178,12 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     diagram.SetRandomContext(context, RandomGenerator(seed))
     simulator.set_target_realtime_rate(clock.rate)
     stop, previous = _install_stop_handlers()
+    while start_when is not None and not stop.requested and not start_when():
+        time.sleep(0.01)
     ticks = overruns = 0
     max_lag = paced_wait = 0.0
     pacer = Pacer(pace, pace_stall) if pace is not None else None
+    lag_reporter = LagReporter(clock.rate, warn_period, overrun_tolerance)
     interrupted = False
     error = None
     clock.restart()
@@ -160,11 +200,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
             ticks += 1
             lag = clock.now() - t
             max_lag = max(max_lag, lag)
-            if lag > overrun_tolerance:
-                overruns += 1
-                if overruns <= 5 or overruns % 100 == 0:
-                    LOG.warning("real-time overrun %d: %.1f ms behind the wall clock at t = "
-                                "%.2f s", overruns, 1e3 * lag, t)
+            overruns += lag_reporter.tick(t, lag, time.monotonic())
             if stop_when is not None and stop_when(context):
                 break
     except KeyboardInterrupt:      # off the main thread the handlers are not installed

@@ -104,10 +104,11 @@ def load_sim_autopilot_params(filename: str = "sim_autopilot.yaml") -> SimAutopi
 
 class SimClock:
     """The autopilot's clock (the simulation's time) as seen from other threads: the time of the
-    last bridge tick plus the wall time since, times the real-time rate (1 unless slowed)."""
+    last bridge tick plus the wall time since, times the real-time rate (1 unless slowed); None
+    before the first tick (the simulation has not started: TIMESYNC is not answered)."""
 
     def __init__(self, rate: float = 1.0):
-        self._t, self._wall = 0.0, time.monotonic()
+        self._t, self._wall = None, time.monotonic()
         self._rate = rate
         self._lock = threading.Lock()
 
@@ -115,8 +116,10 @@ class SimClock:
         with self._lock:
             self._t, self._wall = t, time.monotonic()
 
-    def now(self) -> float:
+    def now(self) -> float | None:
         with self._lock:
+            if self._t is None:
+                return None
             return self._t + (time.monotonic() - self._wall) * self._rate
 
 
@@ -180,8 +183,9 @@ class AutopilotEndpoint(MavlinkEndpoint):
         return cls(transport, params, clock,
                    datagrams=url.split(":", 1)[0] in ("udp", "udpin", "udpout")).start()
 
-    def clock_ns(self) -> int:
-        return int(self.clock.now() * 1e9)
+    def clock_ns(self) -> int | None:
+        now = self.clock.now()
+        return None if now is None else int(now * 1e9)
 
     def _accepts(self, message) -> bool:
         header = message.get_header()
@@ -366,9 +370,12 @@ class AutopilotBridge(LeafSystem):
         if now >= self._next_heartbeat or wall >= self._next_heartbeat_wall:
             self._last_heartbeat = self._rules.heartbeat(self._status.Eval(context))
             base_mode, custom_mode, system_status = self._last_heartbeat
+            # HIL_ENABLED: the vehicle is simulated (PX4 sets it with SYS_HITL = 1); a companion
+            # then follows this clock (hw/hil.py)
             endpoint.send(mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
-                                               mavlink.MAV_AUTOPILOT_PX4, base_mode, custom_mode,
-                                               system_status))
+                                               mavlink.MAV_AUTOPILOT_PX4,
+                                               base_mode | mavlink.MAV_MODE_FLAG_HIL_ENABLED,
+                                               custom_mode, system_status))
             self._next_heartbeat = now + self._params.heartbeat_period
             # Also by the wall clock: a simulation running behind real time still shows it lives.
             self._next_heartbeat_wall = wall + self._params.heartbeat_period
@@ -536,9 +543,12 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
 def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
                       duration: float | None = None, seed: int = 0, run_dir=None,
                       frame_address: str | None = None, stats_file=None, meshcat=None,
-                      record=None, ready=None, realtime_rate: float = 1.0):
+                      record=None, ready=None, realtime_rate: float = 1.0,
+                      wait_for_client: bool = True):
     """Serves the simulated vehicle on `listen` in real time until `duration` or Ctrl-C/SIGTERM;
     writes the run folder (with ground truth) and, if asked, the link statistics (JSON).
+    `wait_for_client`: the simulation (the world, e.g. a landing target's drive, and the
+    autopilot's clock) starts at the first valid MAVLink frame from a client, not at launch.
     `realtime_rate` below 1 slows the simulation (and the autopilot's clock) for a loaded machine;
     the companion must run at the same rate (`alight hil --realtime-rate`)."""
     from alight.hw.realtime import WallClock, run_realtime
@@ -559,9 +569,10 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
             start_recording(meshcat)
         if ready is not None:
             ready()
-        simulator, report = run_realtime(diagram, duration, wall_clock, seed=seed,
-                                         safe_stop=lambda: "simulated vehicle: stops with the "
-                                                           "process")
+        simulator, report = run_realtime(
+            diagram, duration, wall_clock, seed=seed,
+            safe_stop=lambda: "simulated vehicle: stops with the process",
+            start_when=(lambda: endpoint.counters.messages > 0) if wait_for_client else None)
         if meshcat is not None and record is not None:
             write_recording(meshcat, record)
     finally:

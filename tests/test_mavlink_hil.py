@@ -3,11 +3,14 @@ both in real time. `--mission hover`: it takes off, hovers and lands, the missio
 the flight, and every IMU sample of the simulated autopilot crosses the link exactly once.
 `--mission fly`: the waypoints with the linear MPC on the simulated autopilot's mocap (frame
 channel). `--mission land`: the landing mission, unchanged, finds the moving target through the
-frame channel's down-camera frames and lands on it, judged by the autopilot's physics.
+frame channel's down-camera frames and lands on it, judged by the autopilot's physics, started
+in one command (`alight hil --local`) with the default flags.
 
-The onboard side follows the simulated autopilot's clock (`--follow-autopilot-clock`): this test
-machine is shared, the vehicle simulation (1.85x real time on a free core) may fall behind the wall
-clock, and an open-loop pilot profile squeezed or stretched by that lag would fly another flight.
+The onboard side follows the simulated autopilot's clock, by default (its HEARTBEAT says the vehicle
+is simulated): this test machine is shared, the vehicle simulation (1.85x real time on a free core)
+may fall behind the wall clock, and an open-loop pilot profile squeezed or stretched by that lag
+would fly another flight. The hover test passes `--follow-autopilot-clock` explicitly, the others
+rely on the default.
 """
 import subprocess
 import sys
@@ -86,11 +89,10 @@ def test_hil_hover_against_the_sim_autopilot_takes_off_hovers_and_lands(tmp_path
 
 def fly_hil(tmp_path, hil_args, autopilot_args=(), duration=60.0, timeout=150.0):
     """`alight hil` (started first, waiting) against `alight sim-autopilot` with the frame channel,
-    both at real-time rate 1, the onboard side following the autopilot's clock. Returns (hil exit
-    status, its output, the autopilot's run, the onboard run)."""
+    both at real-time rate 1, the onboard side following the autopilot's clock (by default).
+    Returns (hil exit status, its output, the autopilot's run, the onboard run)."""
     port = free_udp_port()
-    hil = HilProcess(port, (*hil_args, "--follow-autopilot-clock",
-                            "--run-dir", str(tmp_path / "hil")))
+    hil = HilProcess(port, (*hil_args, "--run-dir", str(tmp_path / "hil")))
     server = SimAutopilotProcess(tmp_path / "sim-autopilot", duration=duration, port=port,
                                  frames=True, args=autopilot_args)
     try:
@@ -112,6 +114,7 @@ def assert_flew_offboard_to_the_end(status, text, sim, onboard):
     assert sim["fc_status"]["armed"].iloc[-1] == 0.0
     assert np.isfinite(onboard["fc_command"].to_numpy()).all()
     assert onboard.metadata["frames"]["invalid"] == 0
+    assert onboard.metadata["follow_autopilot_clock"] is True, text  # the default: simulated
 
 
 def test_hil_refuses_fly_and_land_without_the_channel_that_carries_the_mocap(capsys):
@@ -150,11 +153,20 @@ def test_hil_fly_visits_the_waypoints_on_the_channel_mocap_and_lands(tmp_path):
 
 @pytest.mark.mission
 def test_hil_land_finds_the_moving_target_through_the_channel_and_lands_on_it(tmp_path):
-    """The field test at 2 m/s with a 14 s approach (models/scenario_field_hil.yaml)."""
-    scenario_args = ("--scenario", "scenario_field_hil.yaml", "--target-speed", "2")
-    status, text, sim, onboard = fly_hil(tmp_path, ("--mission", "land", *scenario_args),
-                                         (*scenario_args, "--seed", "0"), duration=60.0)
-    assert_flew_offboard_to_the_end(status, text, sim, onboard)
+    """The field test at 2 m/s with a 14 s approach (models/scenario_field_hil.yaml), both ends
+    started by `alight hil --local` with no other flag: the autopilot's world (the car) starts at
+    the companion's first frame, after the companion built its diagram, and the companion follows
+    the simulated clock without being told."""
+    hil = subprocess.run(
+        [sys.executable, "-m", "alight.diagrams.cli", "hil", "--local", "--mission", "land",
+         "--scenario", "scenario_field_hil.yaml", "--target-speed", "2", "--seed", "0",
+         "--run-dir", str(tmp_path / "hil")], capture_output=True, text=True, timeout=240)
+    text = hil.stdout + hil.stderr
+    print(text)
+    sim, onboard = read_run(tmp_path / "hil-sim-autopilot"), read_run(tmp_path / "hil")
+    assert_flew_offboard_to_the_end(hil.returncode, text, sim, onboard)
+    assert "the autopilot's vehicle is simulated: following its clock" in text
+    assert "overrun 1:" not in text  # lateness comes as periodic rate warnings, if at all
     modes = [mode for _, mode, _ in mission_transitions(onboard)]
     for mode in (Mode.FOLLOW, Mode.LANDING_P1, Mode.LANDING_P2, Mode.LANDED):
         assert mode in modes, modes

@@ -1,5 +1,6 @@
 """`alight hil`: its options and what it runs (`HELP` says what it does)."""
 import argparse
+import contextlib
 import sys
 
 from alight.diagrams.cli.options import add_scenario_options, args_scenario, frame_address
@@ -10,8 +11,12 @@ HELP = "fly the onboard diagram against a MAVLink flight controller (real or sim
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(NAME, help=HELP, description=HELP)
-    parser.add_argument("--connect", required=True,
-                        help="udp:HOST:PORT, udpin:HOST:PORT, serial:/dev/ttyACM0:921600, ...")
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--connect",
+                       help="udp:HOST:PORT, udpin:HOST:PORT, serial:/dev/ttyACM0:921600, ...")
+    where.add_argument("--local", action="store_true",
+                       help="start `alight sim-autopilot` with this scenario's world on a free "
+                            "local port and fly against it (a HIL demo in one command)")
     parser.add_argument("--mission", default="hover", choices=["hover", "fly", "land"],
                         help="hover: scripted attitude/thrust profile; fly: --waypoints with the "
                              "linear MPC; land: the landing mission of --scenario (fly and land "
@@ -36,9 +41,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="how long to wait for the flight controller (default 10 s)")
     parser.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
                         help="only against `alight sim-autopilot --realtime-rate R`: run slowed")
-    parser.add_argument("--follow-autopilot-clock", action="store_true",
-                        help="simulated autopilot only: also pace on its clock, so that a "
-                             "simulation falling behind real time slows the onboard side with it")
+    parser.add_argument("--follow-autopilot-clock", action=argparse.BooleanOptionalAction,
+                        help="also pace on the autopilot's clock, so that a simulation falling "
+                             "behind real time slows the onboard side with it (default: when "
+                             "its HEARTBEAT says the vehicle is simulated, MAV_MODE_FLAG_HIL_"
+                             "ENABLED, as alight sim-autopilot and PX4 with SYS_HITL 1 do)")
     parser.add_argument("--down-camera", metavar="DEVICE",
                         help="a real down camera through OpenCV (0, /dev/video0, a pipeline, a "
                              "video file), calibrated by models/down_camera.yaml")
@@ -67,14 +74,16 @@ def run(args) -> int:
         print(f"alight hil: {e}", file=sys.stderr)
         return 2
     try:
-        result = run_hil(args.connect, scenario, params, duration=args.duration,
-                         run_dir=args.run_dir,
-                         frame_address=frame_address(args.frames, args.connect),
-                         wait=args.wait, realtime_rate=args.realtime_rate,
-                         follow_autopilot_clock=args.follow_autopilot_clock,
-                         down_camera=args.down_camera)
+        with (local_autopilot(scenario, args.realtime_rate, args.run_dir) if args.local
+              else contextlib.nullcontext(args.connect)) as connect:
+            result = run_hil(connect, scenario, params, duration=args.duration,
+                             run_dir=args.run_dir,
+                             frame_address=frame_address(args.frames, connect),
+                             wait=args.wait, realtime_rate=args.realtime_rate,
+                             follow_autopilot_clock=args.follow_autopilot_clock,
+                             down_camera=args.down_camera)
     except (MavlinkConnectionError, LinkTimeout, MissionUnavailable, ValueError,
-            CameraError) as e:
+            CameraError, RuntimeError) as e:
         print(f"alight hil: {e}", file=sys.stderr)
         return 2
     print("\n".join(result.lines()))
@@ -84,6 +93,54 @@ def run(args) -> int:
         for at, mode, reason in mission_transitions(RunLog(result.run_dir)):
             print(f"  {at:6.2f} s  {mode.name:11s} ({reason.name.lower().replace('_', ' ')})")
     return 1 if result.report.error else 0
+
+
+@contextlib.contextmanager
+def local_autopilot(scenario, realtime_rate: float, run_dir: str | None, ready_timeout=120.0):
+    """`alight sim-autopilot` with `scenario`'s world (its resolved YAML) on a free loopback UDP
+    port, its output prefixed 'sim-autopilot| ' on stderr; yields the connection string; Ctrl-C
+    (SIGINT) to it at the end, which writes its run folder (RUN_DIR-sim-autopilot with
+    --run-dir). RuntimeError if it does not get ready."""
+    import signal
+    import socket
+    import subprocess
+    import tempfile
+    import threading
+    from alight.diagrams.scenario import write_scenario
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        url = f"udp:127.0.0.1:{s.getsockname()[1]}"
+    with tempfile.TemporaryDirectory() as folder:
+        command = [sys.executable, "-m", "alight.diagrams.cli", "sim-autopilot", "--listen", url,
+                   "--scenario", str(write_scenario(folder, scenario)),
+                   "--realtime-rate", str(realtime_rate)]
+        if run_dir is not None:
+            command += ["--run-dir", f"{run_dir.rstrip('/')}-sim-autopilot"]
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                   text=True)
+        ready = threading.Event()
+
+        def forward():
+            for line in process.stdout:
+                print(f"sim-autopilot| {line}", end="", file=sys.stderr, flush=True)
+                if line.startswith("sim-autopilot: ready"):
+                    ready.set()
+        reader = threading.Thread(target=forward, daemon=True)
+        reader.start()
+        try:
+            if not ready.wait(ready_timeout) or process.poll() is not None:
+                raise RuntimeError(f"the local sim-autopilot did not start (exit status "
+                                   f"{process.poll()})")
+            yield url
+        finally:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+            try:
+                process.wait(60)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+            reader.join(5)
 
 
 def _hil_scenario(args):

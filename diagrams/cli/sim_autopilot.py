@@ -21,6 +21,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="camera frame channel socket, or 'none' (default: from the port)")
     parser.add_argument("--stats", metavar="FILE.json",
                         help="write the link statistics (setpoint rate, latency) at exit")
+    parser.add_argument("--wait-for-client", action=argparse.BooleanOptionalAction, default=True,
+                        help="start the simulation (its world, e.g. a landing target's drive, "
+                             "and the autopilot's clock) at the first valid MAVLink frame from a "
+                             "client, not at launch (default yes)")
     parser.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
                         help="slow the simulation to R x real time, R in (0, 1] (a loaded "
                              "machine; run `alight hil` with the same R)")
@@ -49,7 +53,8 @@ def run(args) -> int:
         report, run_dir, stats = run_sim_autopilot(
             args.listen, config, params, duration=args.duration, seed=scenario.random_seed,
             run_dir=args.run_dir, frame_address=frames, stats_file=args.stats, meshcat=meshcat,
-            record=args.record, realtime_rate=args.realtime_rate, ready=lambda: print(
+            record=args.record, realtime_rate=args.realtime_rate,
+            wait_for_client=args.wait_for_client, ready=lambda: print(
                 f"sim-autopilot: ready on {args.listen}" + (f", camera frames on {frames}"
                                                             if frames else ""), flush=True))
     except (MavlinkConnectionError, ValueError) as e:
