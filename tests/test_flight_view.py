@@ -185,9 +185,9 @@ def test_a_recorded_landing_has_the_view(tmp_path):
     assert meshcat.HasPath("/drake/flight_view/paths/target/1")
 
 
-def test_the_mission_api_and_a_hover_label_their_modes(tmp_path):
-    """`alight fly`'s Mission labels the UAV manager's phase; a stack without a mission (hover)
-    the flight controller's mode."""
+def test_the_mission_api_hover_and_track_label_their_modes(tmp_path, vehicle_config):
+    """`alight fly`'s Mission labels the UAV manager's phase; a stack without a mission (hover,
+    alight track) the flight controller's mode."""
     from alight.diagrams.running.mission import Mission
     from alight.diagrams.running.runner import run
     from alight.diagrams.scenario import load_scenario
@@ -207,3 +207,12 @@ def test_the_mission_api_and_a_hover_label_their_modes(tmp_path):
     assert {path.rsplit("/", 1)[1] for path, _ in found
             if path.startswith("/drake/flight_view/mode/")} == {
                 "DISARMED", "ATTITUDE_THRUST", "RATES_THRUST", "FAILSAFE_DESCENT"}
+    from alight.diagrams.running.track import TrackExperiment, fly_track
+    fly_track(vehicle_config, TrackExperiment(trajectory="hover", controller="se3", altitude=1.5,
+                                              settle=0.0, hover_time=1.0),
+              run_dir=tmp_path / "track", meshcat=Meshcat(), record=tmp_path / "track.html",
+              duration=1.0, plots=False)
+    found = tracks(replay_commands((tmp_path / "track.html").read_text()))
+    assert [key["value"] for key in found["/drake/flight_view/mode/DISARMED", ".visible"]] == [
+        True, False]  # armed at once
+    assert len(found["/drake", ".position"]) >= 29

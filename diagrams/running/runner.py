@@ -16,8 +16,7 @@ from alight.diagrams.running.simulation import simulate
 from alight.diagrams.scenario import Scenario, vehicle_config, write_scenario
 from alight.diagrams.stacks import OnboardStack, add_onboard
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.diagrams.world.visualization import add_flight_view
-from alight.systems.boundary import FC_STATUS, ActiveMode
+from alight.diagrams.world.visualization import add_flight_view, add_vehicle_flight_view
 from alight.systems.mission.landing import MISSION_STATUS, Mode
 
 
@@ -25,23 +24,18 @@ def build(builder: DiagramBuilder, scenario: Scenario, meshcat=None,
           odometry=None) -> OnboardStack:
     """The scenario's simulated vehicle ("vehicle") with its onboard stack on it; with a
     `meshcat`, the flight view (diagrams/world/visualization.py) on the vehicle, the car and the
-    mode."""
+    mission's mode (the flight controller's without a mission)."""
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config(scenario),
                                                                  meshcat))
     stack = add_onboard(builder, scenario, vehicle, odometry)
     if meshcat is not None:
-        add_flight_view(builder, meshcat, vehicle.GetOutputPort("ground_truth"),
-                        *shown_mode(vehicle, stack))
+        mission = getattr(stack.parts, "mission", None)
+        if mission is None:
+            add_vehicle_flight_view(builder, meshcat, vehicle)
+        else:
+            add_flight_view(builder, meshcat, vehicle.GetOutputPort("ground_truth"),
+                            mission.GetOutputPort("mission_status"), MISSION_STATUS, "mode", Mode)
     return stack
-
-
-def shown_mode(vehicle, stack: OnboardStack) -> tuple:
-    """What the flight view labels: the landing mission's mode, else the flight controller's
-    (status port, its layout, the field, the enum naming it)."""
-    mission = getattr(stack.parts, "mission", None)
-    if mission is not None and mission.HasOutputPort("mission_status"):
-        return mission.GetOutputPort("mission_status"), MISSION_STATUS, "mode", Mode
-    return vehicle.GetOutputPort("fc_status"), FC_STATUS, "mode", ActiveMode
 
 
 def run(scenario: Scenario, run_dir=None, meshcat=None, record=None,

@@ -27,6 +27,7 @@ from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import RunLog, open_run_folder, write_run_folder
 from alight.diagrams.running.simulation import simulate
 from alight.diagrams.world.sim_vehicle import SimVehicleConfig, make_sim_vehicle
+from alight.diagrams.world.visualization import add_vehicle_flight_view
 from alight.systems.boundary import GROUND_TRUTH
 from alight.systems.control import analytic_reference as ref
 from alight.systems.params import bounded, choice
@@ -137,6 +138,8 @@ def fly_track(vehicle_config: SimVehicleConfig, experiment: TrackExperiment, see
     loop = add_controller_loop(builder, vehicle_diagram, controllers_config, trajectory, names,
                                starts, faults, MocapParams())
     loggers = add_loop_logging(builder, loop, controllers_config.period)
+    if meshcat is not None:
+        add_vehicle_flight_view(builder, meshcat, loop.vehicle)
     diagram = builder.Build()
     if duration is None:
         duration = trajectory.duration + (30.0 if experiment.failsafe_at > 0 else 0.0)

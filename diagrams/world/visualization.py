@@ -19,7 +19,7 @@ from pydrake.geometry import (Meshcat, MeshcatVisualizer, MeshcatVisualizerParam
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from alight.systems.boundary import GROUND_TRUTH, VectorLayout
+from alight.systems.boundary import FC_STATUS, GROUND_TRUTH, ActiveMode, VectorLayout
 
 
 def add_meshcat_visualizer(builder, scene_graph, meshcat: Meshcat):
@@ -184,3 +184,10 @@ def add_flight_view(builder, meshcat: Meshcat, ground_truth, status, status_layo
     builder.Connect(ground_truth, view.GetInputPort("ground_truth"))
     builder.Connect(status, view.GetInputPort("status"))
     return view
+
+
+def add_vehicle_flight_view(builder, meshcat: Meshcat, vehicle) -> FlightView:
+    """A FlightView on a simulated `vehicle` (its `ground_truth`), labelling the flight
+    controller's mode (`fc_status`): for stacks without a mission of their own."""
+    return add_flight_view(builder, meshcat, vehicle.GetOutputPort("ground_truth"),
+                           vehicle.GetOutputPort("fc_status"), FC_STATUS, "mode", ActiveMode)
