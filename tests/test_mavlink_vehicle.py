@@ -1,6 +1,7 @@
 """The MAVLink vehicle against a scripted PX4 stand-in over UDP loopback: its ports, IMU delivery,
 the setpoint stream, the arming/offboard/ack sequences, link loss, the real-time runner and its
 final safe command. Real-time runs here last 1-2 s each."""
+import logging
 import math
 import os
 import signal
@@ -20,7 +21,7 @@ from alight.hw.frames import b_to_frd, q_wb_to_nf
 from alight.hw.link import CommandDenied, LinkParams, LinkTimeout, MavlinkLink
 from alight.hw.mavlink_vehicle import (HW_ONLY_OUTPUTS, LINK_STATUS, MavlinkVehicleParams,
                                        command_sender, make_mavlink_vehicle)
-from alight.hw.realtime import WallClock, run_realtime
+from alight.hw.realtime import LagReporter, WallClock, run_realtime
 from alight.systems import boundary
 from alight.systems.boundary import FC_COMMAND, FC_STATUS, ActiveMode, Refusal
 from mavlink_fake import FakeAutopilot
@@ -320,3 +321,37 @@ def test_realtime_runner_stops_on_a_real_signal_within_a_tick(signum):
     assert report.interrupted and report.safe_stop == "disarmed"
     assert report.sim_time == pytest.approx(0.31, abs=0.011)
     assert signal.getsignal(signum) == previous      # the handlers are put back
+
+
+def test_lateness_is_one_warning_per_period_with_the_achieved_rate(caplog):
+    reporter = LagReporter(rate=1.0, period=5.0, tolerance=0.02)
+    with caplog.at_level(logging.WARNING, logger="alight.hw"):
+        for k in range(1, 1001):  # 10 s of ticks on time: nothing said
+            assert not reporter.tick(0.01 * k, 0.0, 0.01 * k)
+        late = [reporter.tick(10.0 + 0.01 * k, 0.01 * k, 10.0 + 0.02 * k)
+                for k in range(1, 1001)]  # 10 s simulated in 20 s of wall time
+    assert sum(late) == 998  # lag above 20 ms from the third tick on
+    warnings = [r.getMessage() for r in caplog.records]
+    assert reporter.warnings == len(warnings) == 3  # windows closed at 15, 20, 25 s of wall
+    assert all(w.startswith("not keeping real time: 0.50 x real time over the last 5.0 s")
+               for w in warnings), warnings
+
+
+def test_realtime_runner_starts_when_told_and_can_be_stopped_while_waiting():
+    builder = DiagramBuilder()
+    builder.AddSystem(Stall(1.0, 1.0, 0.0, interrupt_at=math.inf))  # on time
+    diagram = builder.Build()
+    start = time.monotonic()
+    go = start + 0.3
+    simulator, report = run_realtime(diagram, 0.2, WallClock(),
+                                     start_when=lambda: time.monotonic() >= go)
+    # time 0 is the start: the 0.3 s of waiting are neither simulated nor late
+    assert report.sim_time == pytest.approx(0.2) and report.overruns == 0
+    assert report.wall_time == pytest.approx(0.2, abs=0.05)
+    assert time.monotonic() - start >= 0.5
+    previous = signal.getsignal(signal.SIGINT)
+    threading.Timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    simulator, report = run_realtime(diagram, 5.0, WallClock(), start_when=lambda: False,
+                                     safe_stop=lambda: "nothing to stop")
+    assert report.interrupted and report.ticks == 0 and report.safe_stop == "nothing to stop"
+    assert signal.getsignal(signal.SIGINT) == previous
