@@ -30,7 +30,7 @@ from scipy.stats import chi2
 from alight.systems.boundary import FC_ATTITUDE, STATE_ESTIMATE, VectorLayout
 from alight.systems.estimation.arbiter import ArbiterParams, Health, choose
 from alight.systems.estimation.heading import rotation_z, with_heading
-from alight.systems.estimation.lkf import POSITION, VELOCITY, DecoupledKf, FilterModelParams
+from alight.systems.estimation.lkf import POSITION, VELOCITY, DecoupledKfBank, FilterModelParams
 from alight.systems.estimation.measurements import (ADAPTERS, AXES, QUANTITIES, Measurement,
                                                     fc_measurements, stamp_and_valid)
 from alight.systems.params import ConfigError, bounded, choice
@@ -158,6 +158,19 @@ def check_bank(params: BankParams, where: str = "<bank>") -> list[list[Fusion]]:
     return fusions
 
 
+def fusion_steps(fusions: list[list[Fusion]]) -> list[list[tuple[Fusion, np.ndarray]]]:
+    """Per position j of the filters' fusion lists: each entry found there with the filters
+    (rows) that have it at j. Fusing step by step keeps every filter's own order."""
+    steps = []
+    for j in range(max(len(f) for f in fusions)):
+        groups: dict[Fusion, list[int]] = {}
+        for i, entries in enumerate(fusions):
+            if j < len(entries):
+                groups.setdefault(entries[j], []).append(i)
+        steps.append([(fusion, np.array(rows)) for fusion, rows in groups.items()])
+    return steps
+
+
 def status_layout(params: BankParams) -> VectorLayout:
     """`bank_status`: active filter index, switches, rejected messages (non-finite, out of order),
     on_ground (1 while the ground source reads the vehicle on the ground) and per filter:
@@ -174,7 +187,7 @@ def status_layout(params: BankParams) -> VectorLayout:
 
 @dc.dataclass
 class BankState:
-    filters: list[DecoupledKf]
+    filters: DecoupledKfBank        # every hypothesis, stored together (lkf.py)
     health: list[Health]
     seen: dict                      # source -> (last stamp, time of arrival)
     raw: dict                       # source -> last message (new messages differ from it)
@@ -194,10 +207,16 @@ class BankState:
     on_ground: bool = False          # the ground source's last recent reading: on the ground
 
     def copy(self) -> "BankState":
-        return dc.replace(self, filters=[f.copy() for f in self.filters],
+        return dc.replace(self, filters=self.filters.copy(),
                           health=[dc.replace(h, rejecting_since=h.rejecting_since.copy())
                                   for h in self.health], seen=dict(self.seen), raw=dict(self.raw),
                           gated=self.gated.copy())
+
+    def __deepcopy__(self, memo) -> "BankState":
+        """Itself: Drake clones abstract state values (copy.deepcopy) at every update, and the
+        bank never changes a state held in a context (`_update` changes a `copy()` and sets
+        it), so the clones may share it, as ImuSamples does."""
+        return self
 
 
 class EstimatorBank(LeafSystem):
@@ -218,6 +237,8 @@ class EstimatorBank(LeafSystem):
         self.status = status_layout(params)
         self.filter_names = [f.name for f in params.filters]
         self._clip = {s.name: s.gate_action == "clip" for s in params.sources}
+        self._gate_on = np.array([f.gate for f in params.filters])
+        self._steps = fusion_steps(self._fusions)
         self._fc = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._sources = {s.name: (s, self.DeclareVectorInputPort(
             s.name, ADAPTERS[s.kind].layout.size)) for s in params.sources}
@@ -226,7 +247,7 @@ class EstimatorBank(LeafSystem):
         initial = self.filter_names.index(params.arbiter.initial) if params.arbiter.initial \
             else 0
         state = BankState(
-            filters=[DecoupledKf(f.model, params.period) for f in params.filters],
+            filters=DecoupledKfBank([f.model for f in params.filters], params.period),
             health=[Health(rejecting_since=np.full(len(f), np.nan)) for f in self._fusions],
             seen={}, raw={},
             gated=np.zeros(len(params.filters)), active=initial)
@@ -245,8 +266,7 @@ class EstimatorBank(LeafSystem):
         new = self._read_sources(context, s, now)
         self._follow_ground(s, new, now)
         self._predict(context, s)
-        for i, f in enumerate(self.params.filters):
-            self._fuse(i, s, new, now)
+        self._fuse(s, new, now)
         self._check_health(s, now)
         self._arbitrate(context, s, now)
         s.stamp = now
@@ -296,8 +316,12 @@ class EstimatorBank(LeafSystem):
             u_o = np.zeros(3)
         if s.on_ground:
             u_o = np.array([u_o[0], u_o[1], max(u_o[2], 0.0)])
-        for kf in s.filters:
-            kf.predict(rotation_z(kf.eta[0] - s.eta_o) @ u_o)
+        kfs = s.filters
+        angle = kfs.eta[:, 0] - s.eta_o   # each filter's input in its own frame: Rz(eta - eta_o) u_o
+        c, sn = np.cos(angle), np.sin(angle)
+        u = np.stack([c * u_o[0] - sn * u_o[1], sn * u_o[0] + c * u_o[1],
+                      np.full(len(angle), u_o[2])], axis=1)
+        kfs.predict(u)
 
     def _follow_ground(self, s: BankState, new: dict, now: float) -> None:
         """On the ground while the ground source's last reading, not older than the source's
@@ -312,49 +336,84 @@ class EstimatorBank(LeafSystem):
         if now - s.seen.get(ground.source, (-np.inf, -np.inf))[0] > timeout:
             s.on_ground = False
 
-    def _fuse(self, i: int, s: BankState, new: dict, now: float) -> None:
-        kf, health = s.filters[i], s.health[i]
+    def _fuse(self, s: BankState, new: dict, now: float) -> None:
+        """Every filter fuses its entries in its own order; at each position of the lists the
+        filters with the same entry fuse it together (one vectorized correction)."""
+        kfs = s.filters
         if "fc" in new and not s.heading_set:
-            kf.eta[0] = s.eta_o  # every frame starts aligned with the flight controller's
-        for j, fusion in enumerate(self._fusions[i]):
-            if fusion.source not in new:
-                continue
-            age, measurements = new[fusion.source]
-            since = health.rejecting_since[j]
-            reset = np.isfinite(since) and now - since >= self.params.arbiter.reset_after
-            gated = self.params.filters[i].gate and not reset
-            for m in measurements:
-                if m.quantity != fusion.quantity:
+            kfs.eta[:, 0] = s.eta_o  # every frame starts aligned with the flight controller's
+        for j, groups in enumerate(self._steps):
+            for fusion, rows in groups:
+                if fusion.source not in new:
                     continue
-                if self._correct(kf, fusion, m, age, gated, reset):
-                    health.rejecting_since[j] = np.nan
-                else:
-                    s.gated[i] += 1
-                    if not np.isfinite(since):
-                        health.rejecting_since[j] = now
-        health.initialized = bool(kf.observed.all())
+                age, measurements = new[fusion.source]
+                for m in measurements:
+                    if m.quantity == fusion.quantity:
+                        self._fuse_group(s, j, fusion, rows, m, age, now)
+        for i, health in enumerate(s.health):
+            health.initialized = bool(kfs.observed[i].all())
 
-    def _correct(self, kf: DecoupledKf, fusion: Fusion, m: Measurement, age: float,
-                 gated: bool, reset: bool) -> bool:
-        """Fuses one measurement; False if the innovation gate rejected it. A reset (the gate
-        failed for `reset_after`) re-initializes a position from the measurement."""
+    def _fuse_group(self, s: BankState, j: int, fusion: Fusion, rows: np.ndarray,
+                    m: Measurement, age: float, now: float) -> None:
+        """Entry `j` of filters `rows` (all `fusion`): the correction, then the gate's
+        bookkeeping (gate rejections, since when a source has been rejected)."""
+        since = np.array([s.health[i].rejecting_since[j] for i in rows])
+        reset = np.isfinite(since) & (now - since >= self.params.arbiter.reset_after)
+        gated = self._gate_on[rows] & ~reset
+        accepted = self._correct(s.filters, rows, fusion, m, age, gated, reset)
+        for i, ok, first in zip(rows, accepted, ~np.isfinite(since)):
+            if ok:
+                s.health[i].rejecting_since[j] = np.nan
+            else:
+                s.gated[i] += 1
+                if first:
+                    s.health[i].rejecting_since[j] = now
+
+    def _correct(self, kfs: DecoupledKfBank, rows: np.ndarray, fusion: Fusion, m: Measurement,
+                 age: float, gated: np.ndarray, reset: np.ndarray) -> np.ndarray:
+        """Fuses one measurement into filters `rows`; per row False if the innovation gate
+        rejected it. A reset (the gate failed for `reset_after`) re-initializes a position from
+        the measurement."""
         q = fusion.quantity
         if q in ("heading", "heading_rate"):
             order = 0 if q == "heading" else 1
-            return kf.correct_heading(float(m.z[0]), float(m.variance[0]), order=order,
-                                      gate=self._gate[1] if gated and order == 0 else None)[0]
+            n = len(rows)
+            if order == 1 or not gated.any():
+                return kfs.correct_heading(rows, np.full(n, m.z[0]), np.full(n, m.variance[0]),
+                                           order=order)
+            accepted = np.ones(n, bool)
+            for gate, select in ((self._gate[1], gated), (None, ~gated)):
+                if select.any():
+                    accepted[select] = kfs.correct_heading(
+                        rows[select], np.full(select.sum(), m.z[0]),
+                        np.full(select.sum(), m.variance[0]), order=0, gate=gate)
+            return accepted
         axes = list(fusion.axes)
         z = m.z[[m.axes.index(a) for a in axes]]
         var = m.variance[[m.axes.index(a) for a in axes]]
         order = VELOCITY if q in ("velocity", "velocity_heading") else POSITION
-        if q == "velocity_heading":
-            z = (rotation_z(kf.eta[0]) @ np.append(m.z, 0.0))[axes]
+        z = np.broadcast_to(z, (len(rows), len(axes)))
+        if q == "velocity_heading":   # turned by each filter's own heading
+            c, sn = np.cos(kfs.eta[rows, 0]), np.sin(kfs.eta[rows, 0])
+            v = m.z
+            z = np.stack([c * v[0] - sn * v[1], sn * v[0] + c * v[1], np.zeros(len(rows))],
+                         axis=1)[:, axes]
             var = np.full(len(axes), var.max())
-        if order == POSITION and (reset or not kf.positioned[axes].all()):
-            kf.set_position(axes, z, var)  # initialization, or re-initialization
-            return True
-        return kf.correct(axes, order, z, var, age, gate=self._gate[len(axes)] if gated else None,
-                          clip=self._clip[fusion.source])[0]
+        var = np.broadcast_to(var, (len(rows), len(axes)))
+        accepted = np.ones(len(rows), bool)
+        if order == POSITION:  # initialization, or re-initialization
+            start = reset | ~kfs.positioned[np.ix_(rows, axes)].all(axis=1)
+            if start.any():
+                kfs.set_position(rows[start], axes, z[start], var[start])
+            rows, z, var, gated = rows[~start], z[~start], var[~start], gated[~start]
+            keep = ~start
+        else:
+            keep = accepted
+        if len(rows):
+            accepted[keep] = kfs.correct(rows, axes, order, z, var, age,
+                                         gate=self._gate[len(axes)], gated=gated,
+                                         clip=self._clip[fusion.source])[0]
+        return accepted
 
     def _check_health(self, s: BankState, now: float) -> None:
         timeouts = {src.name: src.timeout for src in self.params.sources}
@@ -367,14 +426,14 @@ class EstimatorBank(LeafSystem):
 
     def _arbitrate(self, context, s: BankState, now: float) -> None:
         request = int(self._request.Eval(context)[0]) if self._request.HasValue(context) else -1
-        traces = [kf.covariance_trace() for kf in s.filters]
+        traces = s.filters.covariance_traces()
         chosen = choose(s.active, s.active_since, now, s.health, traces, request,
                         self.params.arbiter)
         if chosen == s.active:
             return
-        old, new = s.filters[s.active], s.filters[chosen]
-        R_OldNew = rotation_z(old.eta[0] - new.eta[0])
-        s.p_OldNew = old.x[:, 0] - R_OldNew @ new.x[:, 0]
+        kfs = s.filters
+        R_OldNew = rotation_z(kfs.eta[s.active, 0] - kfs.eta[chosen, 0])
+        s.p_OldNew = kfs.x[s.active, :, 0] - R_OldNew @ kfs.x[chosen, :, 0]
         s.q_OldNew = RotationMatrix(R_OldNew).ToQuaternion().wxyz()
         s.active, s.active_since = chosen, now
         s.frame_counter += 1
@@ -383,31 +442,35 @@ class EstimatorBank(LeafSystem):
     # --- outputs ------------------------------------------------------------------------------
     def _calc_estimate(self, context, output):
         s = context.get_abstract_state(self._state).get_value()
-        kf = s.filters[s.active]
-        q_EB = RotationMatrix.ProjectToRotationMatrix(with_heading(s.R_o, kf.eta[0])) \
+        kfs, i = s.filters, s.active
+        x, eta, var_pv, var_heading = kfs.x[i], kfs.eta[i], kfs.variances(i), kfs.P_eta[i, 0, 0]
+        q_EB = RotationMatrix.ProjectToRotationMatrix(with_heading(s.R_o, eta[0])) \
             .ToQuaternion().wxyz()
-        values = np.concatenate([kf.x.ravel(), kf.eta, kf.variances(), q_EB])
-        valid = s.health[s.active].initialized and bool(np.all(np.isfinite(values)))
+        values = np.concatenate([x.ravel(), eta, var_pv, q_EB])
+        valid = s.health[i].initialized and bool(np.all(np.isfinite(values)))
         if not valid:  # never hand a non-finite value on; say the estimate is not usable
-            kf = DecoupledKf(kf.params, kf.dt)
+            x, eta = np.zeros((3, 3)), np.zeros(2)
+            var_pv, var_heading = DecoupledKfBank.initial_variances(kfs.params[i])
             q_EB = np.array([1.0, 0.0, 0.0, 0.0])
         output.SetFromVector(STATE_ESTIMATE.pack(
             stamp=s.stamp if np.isfinite(s.stamp) else context.get_time(),
-            p_EB=kf.x[:, 0], v_EB=kf.x[:, 1], a_EB=kf.x[:, 2], q_EB=q_EB,
-            heading=kf.eta[0], heading_rate=kf.eta[1], var_pv=kf.variances(),
-            var_heading=kf.P_eta[0, 0], frame_id=float(self.params.filters[s.active].frame_id),
+            p_EB=x[:, 0], v_EB=x[:, 1], a_EB=x[:, 2], q_EB=q_EB,
+            heading=eta[0], heading_rate=eta[1], var_pv=var_pv,
+            var_heading=var_heading, frame_id=float(self.params.filters[i].frame_id),
             frame_counter=float(s.frame_counter), p_OldNew=s.p_OldNew, q_OldNew=s.q_OldNew,
             valid=float(valid)))
 
     def _calc_status(self, context, output):
         s = context.get_abstract_state(self._state).get_value()
+        kfs = s.filters
+        traces = kfs.covariance_traces()
         values = {"active": s.active, "switches": s.switches, "rejected_nan": s.rejected_nan,
                   "rejected_order": s.rejected_order, "on_ground": float(s.on_ground)}
         for i, name in enumerate(self.filter_names):
             values[f"{name}_reliable"] = float(s.health[i].reliable)
-            values[f"{name}_trace"] = s.filters[i].covariance_trace()
+            values[f"{name}_trace"] = traces[i]
             values[f"{name}_gated"] = s.gated[i]
-            values[f"{name}_p"] = s.filters[i].x[:, 0]
-            values[f"{name}_v"] = s.filters[i].x[:, 1]
-            values[f"{name}_heading"] = s.filters[i].eta[0]
+            values[f"{name}_p"] = kfs.x[i, :, 0]
+            values[f"{name}_v"] = kfs.x[i, :, 1]
+            values[f"{name}_heading"] = kfs.eta[i, 0]
         output.SetFromVector(self.status.pack(**values))

@@ -4,7 +4,9 @@ M(6)-(11): x = [x, x', x'', y, y', y'', z, z', z'', eta, eta'], x[t] = A x[t-1] 
 The translational axes each follow A_r(dt, p) / B_r(dt, 1 - p) of M(10) (p1 horizontal, p2
 vertical), the heading A_eta(dt, p3) of M(11) with no input (M Sec. 3.1.1). The input u is the
 unbiased desired acceleration a_d of M(53). As M Sec. 3.1 says, the subsystems are kept apart:
-the state is stored per axis (3 x 3 and 2) so every operation uses 3 x 3 matrices at most.
+the state is stored per axis (3 x 3 and 2) so every operation uses 3 x 3 matrices at most; the
+bank's filters are stored together (`DecoupledKfBank`), so that one NumPy operation updates every
+filter that fuses a measurement.
 
 Corrections are scalar per axis (the subsystems are decoupled, so a measurement of several axes
 is a sum of independent scalar updates and its normalized innovation squared (NIS) is the sum of
@@ -39,107 +41,135 @@ class FilterModelParams:
     initial_heading_std: float = bounded(10.0, 1e-3, 180.0, "deg")
 
 
-class DecoupledKf:
-    """One hypothesis: translational states `x` (3 axes x [p, v, a]) with covariances `P`
-    (3 x 3 x 3), heading states `eta` [eta, eta'] with covariance `P_eta` (2 x 2)."""
+class DecoupledKfBank:
+    """F hypotheses stepped together, each its own decoupled filter: translational states `x`
+    (F x 3 axes x [p, v, a]) with covariances `P` (F x 3 x 3 x 3), heading states `eta`
+    (F x [eta, eta']) with covariances `P_eta` (F x 2 x 2). Every operation takes the rows
+    (filters) it applies to and is one NumPy operation over them: the same 3 x 3 (and 2 x 2)
+    algebra per filter and axis as M Sec. 3.1 keeps apart, not a Python loop per filter."""
 
-    def __init__(self, params: FilterModelParams, dt: float):
-        self.params = params
+    def __init__(self, params: list[FilterModelParams], dt: float):
+        self.params = list(params)
         self.dt = dt
-        p1, p2, p3 = params.p
-        self._A = np.stack([_A_r(dt, p) for p in (p1, p1, p2)])          # M(10), per axis
-        self._b = np.array([1.0 - p1, 1.0 - p1, 1.0 - p2])               # B_r of M(10)
-        self._A_eta = np.array([[1.0, dt], [0.0, p3]])                  # M(11)
+        p = np.array([m.p for m in self.params]).reshape(-1, 3)
+        axes_p = p[:, [0, 0, 1]]                                          # p1, p1, p2 per axis
+        self._A = np.stack([np.stack([_A_r(dt, a) for a in row]) for row in axes_p])  # M(10)
+        self._b = 1.0 - axes_p                                            # B_r of M(10)
+        self._A_eta = np.stack([np.array([[1.0, dt], [0.0, p3]]) for p3 in p[:, 2]])  # M(11)
         g = np.array([dt * dt / 2, dt, 1.0])
-        noise = np.array(params.acceleration_noise)[[0, 0, 1]] ** 2 * dt
-        self._Q = noise[:, None, None] * np.outer(g, g)[None]
-        self._Q_eta = params.heading_rate_noise ** 2 * dt * np.outer([dt / 2, 1.0], [dt / 2, 1.0])
+        noise = np.array([np.array(m.acceleration_noise)[[0, 0, 1]] ** 2 * dt
+                          for m in self.params]).reshape(-1, 3)
+        self._Q = noise[:, :, None, None] * np.outer(g, g)
+        gh = np.outer([dt / 2, 1.0], [dt / 2, 1.0])
+        self._Q_eta = np.stack([m.heading_rate_noise ** 2 * dt * gh for m in self.params])
         self.reset()
 
-    def reset(self) -> None:
-        s = self.params
-        self.x = np.zeros((3, 3))
-        self.P = np.stack([np.diag([s.initial_position_std ** 2, s.initial_velocity_std ** 2,
-                                    1.0])] * 3)
-        self.eta = np.zeros(2)
-        self.P_eta = np.diag([np.radians(s.initial_heading_std) ** 2, 0.1])
-        self.positioned = np.zeros(3, bool)  # per axis: position set from a measurement
-        self.observed = np.zeros(3, bool)    # per axis: any measurement fused
+    def __len__(self) -> int:
+        return len(self.params)
 
-    def copy(self) -> "DecoupledKf":
-        other = object.__new__(DecoupledKf)
+    def reset(self) -> None:
+        n = len(self)
+        self.x = np.zeros((n, 3, 3))
+        self.P = np.zeros((n, 3, 3, 3))
+        self.eta = np.zeros((n, 2))
+        self.P_eta = np.zeros((n, 2, 2))
+        for i, s in enumerate(self.params):
+            self.P[i] = np.diag([s.initial_position_std ** 2, s.initial_velocity_std ** 2, 1.0])
+            self.P_eta[i] = np.diag([np.radians(s.initial_heading_std) ** 2, 0.1])
+        self.positioned = np.zeros((n, 3), bool)  # per filter and axis: position measured
+        self.observed = np.zeros((n, 3), bool)    # per filter and axis: any measurement fused
+
+    def copy(self) -> "DecoupledKfBank":
+        other = object.__new__(DecoupledKfBank)
         other.__dict__.update(self.__dict__)
-        other.x, other.P = self.x.copy(), self.P.copy()
-        other.eta, other.P_eta = self.eta.copy(), self.P_eta.copy()
-        other.positioned, other.observed = self.positioned.copy(), self.observed.copy()
+        for name in ("x", "P", "eta", "P_eta", "positioned", "observed"):
+            setattr(other, name, getattr(self, name).copy())
         return other
 
     def predict(self, u: np.ndarray) -> None:
-        """M(7): one step of dt with the unbiased desired acceleration u (3) in this frame."""
-        self.x = np.einsum("aij,aj->ai", self._A, self.x)
-        self.x[:, 2] += self._b * u
-        self.P = np.einsum("aij,ajk,alk->ail", self._A, self.P, self._A) + self._Q
-        self.eta = self._A_eta @ self.eta
-        self.eta[0] = wrap_angle(self.eta[0])
-        self.P_eta = self._A_eta @ self.P_eta @ self._A_eta.T + self._Q_eta
+        """M(7): one step of dt of every filter, each with its unbiased desired acceleration
+        u (F x 3) in its own frame."""
+        self.x = np.einsum("faij,faj->fai", self._A, self.x)
+        self.x[:, :, 2] += self._b * u
+        self.P = np.einsum("faij,fajk,falk->fail", self._A, self.P, self._A) + self._Q
+        self.eta = np.einsum("fij,fj->fi", self._A_eta, self.eta)
+        self.eta[:, 0] = wrap_angle(self.eta[:, 0])
+        self.P_eta = self._A_eta @ self.P_eta @ self._A_eta.transpose(0, 2, 1) + self._Q_eta
 
-    def set_position(self, axes, position, variance) -> None:
-        """Initialization or reset of the position of `axes` (velocity kept, covariance reset)."""
-        for i, axis in enumerate(axes):
-            self.x[axis, POSITION] = position[i]
-            self.P[axis, 0, :] = self.P[axis, :, 0] = 0.0
-            self.P[axis, 0, 0] = variance[i]
-        self.positioned[list(axes)] = True
-        self.observed[list(axes)] = True
+    def set_position(self, rows, axes, position, variance) -> None:
+        """Initialization or reset of the position of `axes` in filters `rows` (position and
+        variance: rows x axes; velocity kept, covariance reset)."""
+        rows, axes = np.asarray(rows), list(axes)
+        r, a = np.ix_(rows, axes)
+        self.x[r, a, POSITION] = position
+        self.P[r, a, 0, :] = 0.0
+        self.P[r, a, :, 0] = 0.0
+        self.P[r, a, 0, 0] = variance
+        self.positioned[r, a] = True
+        self.observed[r, a] = True
 
-    def correct(self, axes, order: int, z, variance, age: float = 0.0,
-                gate: float | None = None, clip: bool = False) -> tuple[bool, float]:
-        """Position (order 0) or velocity (order 1) of `axes`, measured `age` s ago. Returns
-        (within the gate, NIS); with `gate`, a measurement whose NIS exceeds it changes nothing,
-        or with `clip` is fused with its innovation scaled down to NIS = gate."""
+    def correct(self, rows, axes, order: int, z, variance, age: float = 0.0,
+                gate: float | None = None, gated=True, clip: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Position (order 0) or velocity (order 1) of `axes` in filters `rows`, measured `age` s
+        ago (z, variance: rows x axes). Returns per row (within the gate, NIS); with `gate`, in
+        the rows where `gated`, a measurement whose NIS exceeds it changes nothing, or with
+        `clip` is fused with its innovation scaled down to NIS = gate."""
         h = np.array([1.0, -age, age * age / 2]) if order == POSITION else \
             np.array([0.0, 1.0, -age])
-        axes = list(axes)
-        P = self.P[axes]                                   # (k, 3, 3)
-        Ph = P @ h                                         # (k, 3)
-        S = Ph @ h + np.asarray(variance, float)           # (k,)
-        innovation = np.asarray(z, float) - self.x[axes] @ h
-        nis = float(np.sum(innovation * innovation / S))
-        passed = gate is None or nis <= gate
-        if not passed and not clip:
-            return False, nis
-        if not passed:
-            innovation = innovation * np.sqrt(gate / nis)
-        K = Ph / S[:, None]
-        self.x[axes] += K * innovation[:, None]
-        self.P[axes] = P - K[:, :, None] * Ph[:, None, :]
-        self.observed[axes] = True
+        r, a = np.ix_(np.asarray(rows), list(axes))
+        P = self.P[r, a]                                   # (n, k, 3, 3)
+        Ph = P @ h                                         # (n, k, 3)
+        S = Ph @ h + np.asarray(variance, float)           # (n, k)
+        innovation = np.asarray(z, float) - self.x[r, a] @ h
+        nis = np.sum(innovation * innovation / S, axis=1)
+        passed = np.ones(len(nis), bool) if gate is None else ~(gated & ~(nis <= gate))
+        fused = passed if not clip else np.ones(len(nis), bool)
+        if not passed.all() and clip:
+            innovation = np.where(passed[:, None], innovation,
+                                  innovation * np.sqrt(gate / nis)[:, None])
+        r = r[fused]
+        K = Ph[fused] / S[fused][:, :, None]
+        self.x[r, a] += K * innovation[fused][:, :, None]
+        self.P[r, a] = P[fused] - K[:, :, :, None] * Ph[fused][:, :, None, :]
+        self.observed[r, a] = True
         return passed, nis
 
-    def correct_heading(self, z: float, variance: float, order: int = 0,
-                        gate: float | None = None) -> tuple[bool, float]:
-        """The heading (order 0, M(3)) or the heading rate (order 1, M(15))."""
+    def correct_heading(self, rows, z, variance, order: int = 0, gate: float | None = None
+                        ) -> np.ndarray:
+        """The heading (order 0, M(3)) or the heading rate (order 1, M(15)) of filters `rows`
+        (z, variance: per row). Returns per row whether it was within the gate."""
+        rows = np.asarray(rows)
         h = np.eye(2)[order]
-        Ph = self.P_eta @ h
-        S = float(h @ Ph + variance)
-        innovation = float(wrap_angle(z - self.eta[0])) if order == 0 else z - self.eta[1]
+        Ph = self.P_eta[rows] @ h                          # (n, 2)
+        S = Ph @ h + np.asarray(variance, float)
+        innovation = wrap_angle(z - self.eta[rows, 0]) if order == 0 else \
+            z - self.eta[rows, 1]
         nis = innovation * innovation / S
-        if gate is not None and nis > gate:
-            return False, nis
-        K = Ph / S
-        self.eta = self.eta + K * innovation
-        self.eta[0] = wrap_angle(self.eta[0])
-        self.P_eta = self.P_eta - np.outer(K, Ph)
-        return True, nis
+        passed = np.ones(len(rows), bool) if gate is None else ~(nis > gate)
+        rows, Ph, S, innovation = rows[passed], Ph[passed], S[passed], innovation[passed]
+        K = Ph / S[:, None]
+        eta = self.eta[rows] + K * innovation[:, None]
+        eta[:, 0] = wrap_angle(eta[:, 0])
+        self.eta[rows] = eta
+        self.P_eta[rows] = self.P_eta[rows] - K[:, :, None] * Ph[:, None, :]
+        return passed
 
-    def covariance_trace(self) -> float:
-        """The arbiter's criterion (M Sec. 3.5), on the position block: the hypotheses differ by
-        their position sources; adding (m/s)^2 to m^2 would let velocity noise decide."""
-        return float(self.P[:, 0, 0].sum())
+    def covariance_traces(self) -> np.ndarray:
+        """The arbiter's criterion (M Sec. 3.5), per filter, on the position block: the
+        hypotheses differ by their position sources; adding (m/s)^2 to m^2 would let velocity
+        noise decide."""
+        return self.P[:, :, 0, 0].sum(axis=1)
 
-    def variances(self) -> np.ndarray:
-        """[var p (3), var v (3)]."""
-        return np.concatenate([self.P[:, 0, 0], self.P[:, 1, 1]])
+    def variances(self, i: int) -> np.ndarray:
+        """[var p (3), var v (3)] of filter `i`."""
+        return np.concatenate([self.P[i, :, 0, 0], self.P[i, :, 1, 1]])
+
+    @staticmethod
+    def initial_variances(params: FilterModelParams) -> tuple[np.ndarray, float]:
+        """[var p (3), var v (3)] and the heading variance of a filter just reset."""
+        return (np.repeat([params.initial_position_std ** 2, params.initial_velocity_std ** 2],
+                          3), float(np.radians(params.initial_heading_std) ** 2))
 
 
 def _A_r(dt: float, a: float) -> np.ndarray:
