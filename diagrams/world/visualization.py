@@ -80,8 +80,10 @@ class FlightView(LeafSystem):
     Input `status` (`status_layout`): its field `mode_field` is the mode shown, named by `modes`.
     Every `period` the scene (/drake) is shifted by minus the framed point and the camera, looking
     at it, backed off (`framing`); every `path_period` the paths get a point, a piece closing every `piece` s; the
-    label of the current mode is the one visible. What has been drawn (the open path pieces, the
-    mode shown) is kept by the system, as MeshcatVisualizer keeps what it has sent, not in the
+    label of the current mode is the one visible. The camera is moved only when its back-off
+    changes (it is continuous: a recording's linear interpolation between two keys is within
+    one change). What has been drawn (the open path pieces, the mode, the back-off) is kept by
+    the system, as MeshcatVisualizer keeps what it has sent, not in the
     context: it describes the browser's scene, not the simulation."""
 
     def __init__(self, meshcat: Meshcat, status_layout: VectorLayout, mode_field: str,
@@ -98,7 +100,7 @@ class FlightView(LeafSystem):
         self.DeclarePeriodicPublishEvent(period, 0.0, self._frame)
         self.DeclarePeriodicPublishEvent(path_period, 0.0, self._extend_paths)
         self._pieces: dict[str, list] = {}
-        self._mode = None
+        self._mode = self._back_off = None
         _draw_labels(meshcat, modes)
 
     def _positions(self, context) -> tuple[np.ndarray, np.ndarray | None]:
@@ -110,7 +112,7 @@ class FlightView(LeafSystem):
     def _start(self, context):
         for name in self._modes.__members__:
             self._meshcat.SetProperty(f"{MODE}/{name}", "visible", False, 0.0)
-        self._mode = None
+        self._mode = self._back_off = None
         self._pieces = {name: [0, []] for name in COLORS}
         self._meshcat.Delete(PATHS)
         self._meshcat.SetCameraPose(CAMERA_OFFSET, np.zeros(3))
@@ -123,7 +125,9 @@ class FlightView(LeafSystem):
         grid = GRID_CELL * np.round(center / GRID_CELL)
         grid[2] = 0.0
         self._meshcat.SetTransform(GRID, RigidTransform(grid - center), t)
-        self._meshcat.SetProperty(CAMERA, "position", three_js(back_off * CAMERA_OFFSET), t)
+        if back_off != self._back_off:  # else the live view's camera is the user's to turn
+            self._meshcat.SetProperty(CAMERA, "position", three_js(back_off * CAMERA_OFFSET), t)
+            self._back_off = back_off
         self._meshcat.SetTransform(MODE, RigidTransform(p_WB + [0, 0, LABEL_HEIGHT]), t)
         mode = self._modes(int(round(self._status_layout.get(self._status.Eval(context),
                                                              self._mode_field))))
