@@ -324,3 +324,180 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
           "in", seconds, "s")
     assert local["reset_counter"].max() == 0
     assert local["rejected"].max() < 0.01 * 30 * 6 * seconds  # 30 Hz, 3 positions + 3 velocities
+
+
+class VisionCompanion:
+    """A second companion process stand-in on its own UDP port: forwards the simulated world's
+    mocap (frame channel) to the autopilot as ODOMETRY at 30 Hz while `odometry` is set, and
+    streams a level hover SET_ATTITUDE_TARGET at 20 Hz while `setpoints` is set (the autopilot
+    handles every client's messages; it answers its one peer, MAVSDK here)."""
+
+    def __init__(self, port: int, frames):
+        from pymavlink import mavutil
+        import threading
+        self._connection = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=1, source_component=197, dialect="common")
+        self._connection.mav = mavlink.MAVLink(self._connection, 1, 197)
+        self._frames = frames
+        self.odometry, self.setpoints, self.sent = True, False, 0
+        self._running = True
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+
+    def command(self, command, *params):
+        self._connection.mav.send(self._connection.mav.command_long_encode(
+            1, 1, command, 0, *params, *[0.0] * (7 - len(params))))
+
+    def _loop(self):
+        import time
+        from alight.hw.frame_channel import EstimateSample
+        mav, last, next_setpoint = self._connection.mav, -1.0, 0.0
+        while self._running:
+            sample = self._frames.latest("mocap")
+            if self.odometry and isinstance(sample, EstimateSample) and sample.stamp > last:
+                last = sample.stamp
+                mav.send(odometry_message(mav, np.array(sample.value), int(sample.stamp * 1e6),
+                                          0, mavlink.MAV_ESTIMATOR_TYPE_VISION,
+                                          quality(np.array(sample.value), 1.0)))
+                self.sent += 1
+            if self.setpoints and time.monotonic() >= next_setpoint:
+                mav.send(mav.set_attitude_target_encode(0, 1, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.64))
+                next_setpoint = time.monotonic() + 0.05
+            time.sleep(1 / 30)
+
+    def close(self):
+        self._running = False
+        self._thread.join(2.0)
+        self._connection.close()
+
+
+@pytest.mark.mission
+def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss(tmp_path):
+    """MAVSDK (the peer) flies OFFBOARD attitude setpoints while a vision companion sends the
+    world's mocap as ODOMETRY: `position_velocity_ned` follows the truth; offboard.stop() (Hold)
+    holds the position; an offboard loss with a valid estimate holds (COM_OBL_RC_ACT 0:
+    Position), without one (vision stopped, EKF2_NOAID_TOUT 1 s here) lands."""
+    import time
+    from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
+    from mavsdk.plugins.action import Action
+    from mavsdk.plugins.offboard import Attitude, Offboard
+    from mavsdk.plugins.telemetry import FlightMode, Telemetry
+    from alight.diagrams.running.run_log import read_run
+    from alight.hw.frame_channel import FrameSubscriber, default_frame_address
+    from mavlink_fake import SimAutopilotProcess
+    from test_mavlink_mavsdk import wait_for
+
+    server = SimAutopilotProcess(tmp_path / "sim-autopilot", frames=True, duration=90.0, args=(
+        "--set", "vehicle.flight_controller.external_vision.noaid_tout: 1.0"))
+    frames = FrameSubscriber(default_frame_address(str(server.port)))
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
+    seen = {"attitude": [], "position": [], "mode": []}
+    companion = None
+    try:
+        assert mavsdk.add_any_connection(f"udpout://127.0.0.1:{server.port}") == \
+            ConnectionResult.SUCCESS
+        system = mavsdk.first_autopilot(15.0)
+        telemetry, action, offboard = Telemetry(system), Action(system), Offboard(system)
+
+        def sim_time():
+            return seen["attitude"][-1].timestamp_us * 1e-6 if seen["attitude"] else 0.0
+        telemetry.subscribe_attitude_quaternion(lambda q, _: seen["attitude"].append(q))
+        telemetry.subscribe_position_velocity_ned(
+            lambda pv, _: seen["position"].append((sim_time(), pv)))
+        telemetry.subscribe_flight_mode(lambda m, _: seen["mode"].append((sim_time(), m)))
+
+        def sleep_sim(duration):
+            start = sim_time()
+            wait_for(lambda: sim_time() >= start + duration, 30.0, f"{duration} s simulated")
+
+        def mode_is(mode):
+            return bool(seen["mode"]) and seen["mode"][-1][1] == mode
+
+        def companion_offboard():  # its ack goes to the peer: resent until the mode shows
+            for _ in range(10):
+                companion.command(mavlink.MAV_CMD_DO_SET_MODE, 1, px4.MainMode.OFFBOARD)
+                try:
+                    return wait_for(lambda: mode_is(FlightMode.OFFBOARD), 0.5, "OFFBOARD")
+                except AssertionError:
+                    pass
+            raise AssertionError("OFFBOARD refused: " + "".join(server.output[-5:]))
+        wait_for(lambda: seen["attitude"], 15.0, "attitude telemetry")
+        companion = VisionCompanion(server.port, frames)  # after MAVSDK is the peer
+        wait_for(lambda: seen["position"] and math.isfinite(seen["position"][-1][1].position
+                                                            .north_m), 15.0, "a position")
+        # Take off in OFFBOARD on attitude setpoints, climbing
+        offboard.set_attitude(Attitude(0.0, 0.0, 0.0, 0.1))
+        offboard.start()
+        sleep_sim(0.3)
+        action.arm()
+        wait_for(lambda: telemetry.armed() and mode_is(FlightMode.OFFBOARD), 10.0,
+                 "armed in OFFBOARD")
+        offboard.set_attitude(Attitude(0.0, 0.0, 0.0, 0.8))
+        wait_for(telemetry.in_air, 10.0, "in the air")
+        sleep_sim(0.4)
+        offboard.set_attitude(Attitude(0.0, 0.0, 0.0, 0.64))
+        sleep_sim(0.3)
+        offboard.stop()  # MAVSDK asks for Hold
+        wait_for(lambda: mode_is(FlightMode.HOLD), 5.0, "Hold")
+        t_hold = sim_time()
+        sleep_sim(4.0)
+        # Offboard again from the companion, whose setpoints then stop: offboard loss
+        companion.setpoints = True
+        sleep_sim(0.5)
+        companion_offboard()
+        sleep_sim(0.5)
+        companion.setpoints = False
+        wait_for(lambda: mode_is(FlightMode.POSCTL), 5.0, "Position after the loss")
+        t_loss = sim_time()
+        sleep_sim(4.0)
+        # Once more without a position: the vision stops first, then the setpoints
+        companion.setpoints = True
+        sleep_sim(0.5)
+        companion_offboard()
+        companion.odometry = False
+        sleep_sim(1.5)
+        t_blind = sim_time()
+        companion.setpoints = False
+        wait_for(lambda: mode_is(FlightMode.LAND), 5.0, "Land after the loss without position")
+        wait_for(lambda: not telemetry.armed(), 30.0, "landed and disarmed")
+    finally:
+        print("modes", [(round(s, 2), m) for s, m in seen["mode"]])
+        if companion is not None:
+            companion.close()
+        mavsdk.destroy()
+        frames.close()
+        assert server.stop() == 0, "".join(server.output)
+    truth = read_run(server.run_dir)["ground_truth"]
+    t = truth["time"].to_numpy()
+    p = truth[["p_WB_0", "p_WB_1", "p_WB_2"]].to_numpy()
+    # MAVSDK's position (NED) is the truth to the odometry noise EKF2 assumes (0.1 m), with
+    # the telemetry's pairing to the latest attitude time (<= 20 ms at < 2 m/s)
+    flying = [(s, pv) for s, pv in seen["position"] if s < t_blind]
+    ned = np.array([[pv.position.north_m, pv.position.east_m, pv.position.down_m]
+                    for _, pv in flying])
+    stamps = np.array([s for s, _ in flying])
+    true_ned = np.column_stack([np.interp(stamps, t, p[:, 0]), -np.interp(stamps, t, p[:, 1]),
+                                -np.interp(stamps, t, p[:, 2])])
+    error = np.linalg.norm(ned - true_ned, axis=1)
+    print(f"MAVSDK position error p50 {np.median(error):.3f} p99 "
+          f"{np.percentile(error, 99):.3f} m over {len(error)} samples; climb "
+          f"{p[:, 2].max() - p[0, 2]:.2f} m")
+    assert len(error) > 100 and np.percentile(error, 99) < 0.1 + 0.04
+    assert p[:, 2].max() - p[0, 2] > 1.0
+
+    def still(start, end):  # position spread and speed over [start, end]
+        window = (t >= start) & (t <= end)
+        spread = np.ptp(p[window], axis=0)
+        return np.linalg.norm(spread), window
+    spread, _ = still(t_hold + 2.0, t_hold + 4.0)
+    print(f"Hold: spread {spread:.3f} m")
+    assert spread < 0.2
+    spread, _ = still(t_loss + 2.0, t_loss + 4.0)
+    print(f"offboard loss with a position: spread {spread:.3f} m")
+    assert spread < 0.2
+    # Without a position: the flight controller's descent (1 m/s), down to the ground
+    v_z = truth["v_WB_2"].to_numpy()
+    descending = (t > t_blind + 1.5) & (t < t_blind + 3.0)
+    print(f"descent without a position: {np.median(v_z[descending]):.2f} m/s")
+    assert np.median(v_z[descending]) == pytest.approx(-1.0, abs=0.15)
+    assert abs(p[-1, 2] - p[0, 2]) < 0.05  # back on the ground, disarmed (above)
