@@ -12,7 +12,7 @@ from alight.diagrams.onboard.perception import load_target_estimator_params
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.diagrams.world.target import DownCameraRig
 from alight.systems.boundary import FC_COMMAND
-from alight.systems.perception.detector import Rectifier
+from alight.systems.perception.detector import RectifiedFrame, Rectifier
 from alight.systems.perception.keypoint_tracker import KeypointTracker
 from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.target.vehicle import load_target_params
@@ -95,3 +95,24 @@ def test_rendered_source_publishes_grey_lens_frames_from_the_vehicle(vehicle_con
     assert frame.stamp == pytest.approx(0.1623 + 0.005)
     assert frame.calibration["K"][0, 0] == 160.0 and len(frame.calibration["distortion"]) == 5
     assert 20.0 < frame.image.mean() < 235.0 and frame.image.std() > 1.0  # the ground, lit
+
+
+@pytest.mark.parametrize("height, tilt_deg", [(4.0, 0.0), (8.0, 20.0)])
+def test_tracking_in_the_searched_window_equals_the_whole_frame(rig, tracker, height, tilt_deg):
+    """`track` rectifies and binarizes only the window around the searches (plus half the
+    threshold's block): the same matches as on the whole frame's binary image, bit for bit."""
+    rectifier, keypoints = tracker
+    X_WB = RigidTransform(RollPitchYaw(np.radians(tilt_deg), 0.0, 1.0),
+                          [TARGET[0] + 0.5, TARGET[1] - 0.3, 1.0 + height])
+    image = rig.render(X_WB, TARGET, seed=2)
+    X_CT = rig.X_CT() @ RigidTransform(RollPitchYaw(0.0, 0.03, 0.05), [0.1, -0.1, 0.05])
+    whole = RectifiedFrame(rectifier, image, rig.lens)
+    expected = keypoints.match(whole.view().binary, whole.view().valid, rig.lens.K_rectified,
+                               X_CT)
+    frame = RectifiedFrame(rectifier, image, rig.lens)
+    window = frame.view(0, keypoints._window(frame, X_CT))
+    found = keypoints.track(frame, X_CT)
+    assert window.binary.size < 0.5 * whole.view().binary.size  # a window, not the frame
+    assert len(found) == len(expected) >= 8
+    for a, b in zip(found, expected):
+        assert a.id == b.id and np.array_equal(a.uv, b.uv) and a.difference == b.difference

@@ -151,9 +151,12 @@ class Rectifier:
         """Adaptive threshold over a window of `threshold_block` x `width` (the whole image's
         width at this level; default: this image's)."""
         width = smoothed.shape[1] if width is None else width
-        block = max(3, int(self._params.threshold_block * width) // 2 * 2 + 1)
         return cv2.adaptiveThreshold(smoothed, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY,
-                                     block, self._params.threshold_offset)
+                                     self.block(width), self._params.threshold_offset)
+
+    def block(self, width: int) -> int:
+        """The adaptive threshold's window [px] in an image `width` px wide."""
+        return max(3, int(self._params.threshold_block * width) // 2 * 2 + 1)
 
 
 class RectifiedFrame:
@@ -194,6 +197,10 @@ class RectifiedFrame:
             valid[:m], valid[-m:], valid[:, :m], valid[:, -m:] = 0, 0, 0, 0
             view = dc.replace(view, valid=valid)
         return view
+
+    def threshold_block(self, level: int) -> int:
+        """The adaptive threshold's window [px] at `level`."""
+        return self._rectifier.block(self.lens.width >> level)
 
     def _whole_view(self, level: int) -> View:
         if level not in self._whole:

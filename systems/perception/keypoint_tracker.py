@@ -5,7 +5,9 @@ For each pattern keypoint, its location predicted from the target EKF's predicte
 pattern plane), and a brute-force search of the predicted location's 60 x 60 px neighbourhood in the
 binarized rectified image for the minimum of the squared difference (`cv2.matchTemplate`, masked to
 the platform's pixels). A match whose mean squared difference exceeds `max_difference` is dropped;
-the chi-square test on the residual is the EKF's (target_ekf.py).
+the chi-square test on the residual is the EKF's (target_ekf.py). `track` binarizes only the window
+of the frame that the searches cover, with a margin of half the threshold's block, so that its
+binary image is the whole frame's there.
 """
 import dataclasses as dc
 
@@ -14,6 +16,7 @@ import numpy as np
 from pydrake.math import RigidTransform
 
 from alight.systems.params import bounded
+from alight.systems.perception.detector import RectifiedFrame
 from alight.systems.perception.pattern import Pattern
 
 
@@ -42,6 +45,30 @@ class KeypointTracker:
         self._template = pattern.template(n).astype(np.float32)
         self._support = np.full((n, n), 255.0, np.float32)
         self._M_T_tpl = pattern.template_to_T(n)
+
+    def track(self, frame: RectifiedFrame, X_CT: RigidTransform,
+              ids=None) -> list[KeypointMatch]:
+        """`match` in the window of the rectified frame around the searches."""
+        window = self._window(frame, X_CT)
+        if window is None:
+            return []
+        view = frame.view(0, window)
+        K = frame.lens.K_rectified.copy()
+        K[:2, 2] -= view.origin
+        return [dc.replace(m, uv=m.uv + view.origin, predicted=m.predicted + view.origin)
+                for m in self.match(view.binary, view.valid, K, X_CT, ids)]
+
+    def _window(self, frame: RectifiedFrame, X_CT: RigidTransform):
+        """(x0, y0, x1, y1) covering every keypoint's search and the threshold's half block."""
+        p_C = self._pattern.p_TK @ X_CT.rotation().matrix().T + X_CT.translation()
+        p_C = p_C[p_C[:, 2] > 0.05]
+        if not len(p_C):
+            return None
+        K = frame.lens.K_rectified
+        uv = p_C[:, :2] / p_C[:, 2:] @ K[:2, :2].T + K[:2, 2]
+        grow = self._params.search_size / 2 + self._params.patch_size + 2 \
+            + frame.threshold_block(0) // 2 + 4  # + the smoothing's reach
+        return (*(uv.min(axis=0) - grow), *(uv.max(axis=0) + grow))
 
     def match(self, binary: np.ndarray, valid: np.ndarray, K: np.ndarray, X_CT: RigidTransform,
               ids=None) -> list[KeypointMatch]:

@@ -249,10 +249,7 @@ class TargetEstimator(LeafSystem):
 
     def _track(self, frame, images, lens, X_CT_predicted) -> list[tuple[int, np.ndarray]]:
         if images is not None:
-            view = images.view()  # the whole frame (the detector reuses it)
-            binary, valid = view.binary, view.valid
-            return [(m.id, m.uv) for m in self._keypoint_tracker().match(
-                binary, valid, lens.K_rectified, X_CT_predicted)]
+            return [(m.id, m.uv) for m in self._keypoint_tracker().track(images, X_CT_predicted)]
         uv = lens.rectify_points(frame.keypoints)
         if frame.keypoint_ids is not None:  # labelled (idealized)
             return list(zip((int(i) for i in frame.keypoint_ids), uv))
