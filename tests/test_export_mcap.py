@@ -31,7 +31,7 @@ def exported(landing_run, tmp_path_factory):
     out = tmp_path_factory.mktemp("mcap") / "land.mcap"
     assert main(["export", str(landing_run.path), "--mcap", str(out)]) == 0
     with out.open("rb") as stream:
-        reader = make_reader(stream)
+        reader = make_reader(stream, validate_crcs=True)
         summary = reader.get_summary()
         protobuf, decoders, messages = DecoderFactory(), {}, {}
         for schema, channel, message in reader.iter_messages(log_time_order=False):
