@@ -2,11 +2,11 @@
 
 `add_meshcat_visualizer` draws the scene's illustration geometry. `add_flight_view` adds a
 `FlightView`: the view follows the vehicle and the car (the scene is shifted so that their
-midpoint stays in front of the camera, which backs off as they part), their paths drawn as lines, the
-mission's mode as a label above the vehicle. Everything it sets is also recorded (Meshcat
-animations hold transforms and properties, not objects: the paths are drawn in one-second pieces
-shown from their end, the labels are textured planes made visible in turn), so a replay opens
-framed on the action as the live view does.
+midpoint stays in front of the camera, which backs off as they part), their paths drawn as
+lines, the mission's mode as a label above the vehicle. Everything it sets is also recorded
+(Meshcat animations hold transforms and properties, not objects: the paths are drawn in
+one-second pieces shown from their end, the labels are textured planes made visible in turn), so
+a replay opens framed on the action as the live view does.
 """
 import enum
 import tempfile
@@ -78,13 +78,13 @@ class FlightView(LeafSystem):
 
     Input `ground_truth` (GROUND_TRUTH): the vehicle p_WB, the car p_WT when `target_present`.
     Input `status` (`status_layout`): its field `mode_field` is the mode shown, named by `modes`.
-    Every `period` the scene (/drake) is shifted by minus the framed point and the camera, looking
-    at it, backed off (`framing`); every `path_period` the paths get a point, a piece closing every `piece` s; the
-    label of the current mode is the one visible. The camera is moved only when its back-off
-    changes (it is continuous: a recording's linear interpolation between two keys is within
-    one change). What has been drawn (the open path pieces, the mode, the back-off) is kept by
-    the system, as MeshcatVisualizer keeps what it has sent, not in the
-    context: it describes the browser's scene, not the simulation."""
+    Every `period` the scene (/drake) is shifted by minus the framed point and the camera,
+    looking at it, backed off (`framing`); every `path_period` the paths get a point, a piece
+    closing every `piece` s; the label of the current mode is the one visible. The camera is
+    moved only when its back-off changes (it is continuous: a recording's linear interpolation
+    between two keys is within one change). What has been drawn (the open path pieces, the
+    mode, the back-off) is kept by the system, as MeshcatVisualizer keeps what it has sent, not
+    in the context: it describes the browser's scene, not the simulation."""
 
     def __init__(self, meshcat: Meshcat, status_layout: VectorLayout, mode_field: str,
                  modes: type[enum.IntEnum], period: float = 1 / 30, path_period: float = 0.1,
