@@ -34,10 +34,10 @@ _VISION_FRAMES = (mavlink.MAV_FRAME_LOCAL_FRD, mavlink.MAV_FRAME_LOCAL_NED)
 _VISION_SOURCES = (mavlink.MAV_ESTIMATOR_TYPE_VISION, mavlink.MAV_ESTIMATOR_TYPE_VIO,
                    mavlink.MAV_ESTIMATOR_TYPE_UNKNOWN)
 # What a receiver of LANDING_TARGET logs (the simulated autopilot's run folder): the time it
-# arrived [s, autopilot clock], the message's time [s], the target position p_WT [m, W] and the
-# number received so far.
+# arrived [s, autopilot clock], the message's time (`sent`, the estimate's) [s], the target
+# position p_WT [m, W] and the number received so far.
 LANDING_TARGET_RECEIVED = VectorLayout("landing_target", [
-    ("stamp", 1), ("time", 1), ("p_WT", 3), ("count", 1)])
+    ("stamp", 1), ("sent", 1), ("p_WT", 3), ("count", 1)])
 # Diagonal of the 6x6 covariance in its 21-element upper triangle: x, y, z, roll, pitch, yaw.
 DIAGONAL = (0, 6, 11, 15, 18, 20)
 

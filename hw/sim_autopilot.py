@@ -238,7 +238,7 @@ class AutopilotBridge(LeafSystem):
         self._odometry = self.DeclareDiscreteState(STATE_ESTIMATE.vector(valid=0.0))
         self.DeclareStateOutputPort("odometry", self._odometry)
         self._landing_target = self.DeclareDiscreteState(
-            LANDING_TARGET_RECEIVED.vector(stamp=-1.0, time=-1.0))
+            LANDING_TARGET_RECEIVED.vector(stamp=-1.0, sent=-1.0))
         self.DeclareStateOutputPort("landing_target", self._landing_target)
         self._received: dict[str, np.ndarray] = {}
         initial = FC_COMMAND.pack(stamp=0.0, mode=1, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
@@ -331,7 +331,7 @@ class AutopilotBridge(LeafSystem):
             count = LANDING_TARGET_RECEIVED.get(
                 context.get_discrete_state(self._landing_target).get_value(), "count")
             discrete_state.set_value(self._landing_target, LANDING_TARGET_RECEIVED.vector(
-                stamp=now, time=message.time_usec * 1e-6, p_WT=p_WT, count=count + 1))
+                stamp=now, sent=message.time_usec * 1e-6, p_WT=p_WT, count=count + 1))
         self._received.clear()
 
     def _command_answer(self, command, params, now, status):
