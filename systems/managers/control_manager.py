@@ -189,7 +189,29 @@ class _Decision:
     reference: np.ndarray    # REFERENCE given to the controllers
 
 
-class ControlManager(LeafSystem):
+class CommandSwitch(LeafSystem):
+    """What the control manager and the failsafe switch (failsafe_switch.py) share: the
+    activation contract of alight.systems.control.controller, a decision that is a function of
+    the inputs and the state at the tick. `_declare_switching(period)` declares the last usable
+    command issued (`_last_command`), the periodic `_update`, the tick's `_compute_decision`
+    cached once per context change (`_decision`, read by the outputs and the update) and the
+    `fc_command` output (`_calc_command`); subclasses implement the three methods."""
+
+    def _declare_switching(self, period: float) -> set:
+        """Returns the tickets of everything (inputs, state, time) the decision depends on."""
+        self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
+        self._decision = self.DeclareCacheEntry(
+            "decision", ValueProducer(allocate=AbstractValue.Make(None).Clone,
+                                      calc=lambda context, value: value.set_value(
+                                          self._compute_decision(context))), everything)
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
+                                     everything)
+        return everything
+
+
+class ControlManager(CommandSwitch):
     """Built from the fields of its config (ControlManagerConfig of
     alight.diagrams.onboard.control_manager), by keyword: `controllers` and `trackers` are the
     names of the YAML lists, in order (requests index them); the per-controller and per-tracker
@@ -273,17 +295,8 @@ class ControlManager(LeafSystem):
                          tracker_request_id=0, tracker_switches=0, tracker_since=0.0,
                          arm_flag=1.0)
         self._state = self.DeclareDiscreteState(x0)
-        self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
-        # The tick's decision, computed once per context change: the `NAME.active` and
-        # `reference` outputs and the update all read it.
-        self._decision = self.DeclareCacheEntry(
-            "decision", ValueProducer(allocate=AbstractValue.Make(None).Clone,
-                                      calc=lambda context, value: value.set_value(
-                                          self._compute_decision(context))), everything)
-        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
-                                     everything)
+        # The `NAME.active` and `reference` outputs and the update all read the decision.
+        everything = self._declare_switching(period)
         self.DeclareVectorOutputPort("last_disturbance", DISTURBANCE_ESTIMATE.size,
                                      functools.partial(self._forward_active, self._disturbances),
                                      {self.all_input_ports_ticket(), self.all_state_ticket()})

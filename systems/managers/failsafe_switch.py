@@ -26,14 +26,13 @@ failsafe takes over at that tick).
 import dataclasses as dc
 
 import numpy as np
-from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
                                      VectorLayout, estimate_is_valid)
-from alight.systems.control.controller import command_is_usable, controller_failed, level_command
+from alight.systems.control.controller import command_is_usable, controller_failed
 from alight.systems.control.failsafe import FailsafeParams
-from alight.systems.managers.control_manager import MANAGER_STATUS, FailsafeCause, ManagerMode
+from alight.systems.managers.control_manager import (MANAGER_STATUS, CommandSwitch,
+                                                     FailsafeCause, ManagerMode)
 from alight.systems.params import bounded, param_file
 
 
@@ -52,7 +51,7 @@ _STATE = VectorLayout("failsafe_switch_state", [
 _MODE, _FAILSAFE = _STATE.slice("mode").start, float(ManagerMode.FAILSAFE)
 
 
-class FailsafeSwitch(LeafSystem):
+class FailsafeSwitch(CommandSwitch):
     """Inputs  `state_estimate` STATE_ESTIMATE; `reference` REFERENCE (what the controller
             follows); `arm` (2) the mission's [arm, thrust enable]; `controller.fc_command`
             FC_COMMAND and `controller.controller_status` CONTROLLER_STATUS of the controller;
@@ -77,17 +76,8 @@ class FailsafeSwitch(LeafSystem):
                                                    CONTROLLER_STATUS.size)
         self._state = self.DeclareDiscreteState(_STATE.vector(
             mode=ManagerMode.NORMAL, p_ref=np.nan, v_ref=np.nan, t_ref=np.nan))
-        self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
-        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
-        everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
-        # The tick's decision, computed once per context change: the `NAME.active` outputs and
-        # the update read it.
-        self._decision = self.DeclareCacheEntry(
-            "decision", ValueProducer(allocate=AbstractValue.Make(None).Clone,
-                                      calc=lambda context, value: value.set_value(
-                                          self._compute_decision(context))), everything)
-        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
-                                     everything)
+        # The `NAME.active` outputs and the update read the decision.
+        everything = self._declare_switching(params.period)
         for index, name in enumerate(("controller", "failsafe")):
             self.DeclareVectorOutputPort(
                 f"{name}.active", 1, lambda context, output, index=index: output.SetFromVector(
