@@ -97,6 +97,11 @@ def test_poses_and_transforms_of_vehicle_target_and_estimate(landing_run, export
     assert transform.translation.x == truth["p_WT_0"].iloc[k]
     _, path = messages["/paths/vehicle"][0]
     assert len(path.poses) == len(truth)
+    assert channels["/scene"].name == "foxglove.SceneUpdate"
+    [(_, scene)] = messages["/scene"]
+    assert [(e.frame_id, e.frame_locked) for e in scene.entities] == [("vehicle", True),
+                                                                     ("target", True)]
+    assert scene.entities[1].cubes[0].size.x == 1.5  # the landing platform
 
 
 def test_mission_modes_are_log_messages(landing_run, exported):

@@ -11,6 +11,8 @@ Channels (log time = the sample's simulated time in ns; docs/run_folder.md "Expo
     /tf/<frame>       foxglove.FrameTransform world -> <frame>, the same samples
     /paths/<frame>    foxglove.PosesInFrame: the whole path once, at its last sample
     /mission          foxglove.Log: the landing mission's mode transitions (landing runs)
+    /scene            foxglove.SceneUpdate, once: a box on the `vehicle` frame and the landing
+                      platform on the `target` frame (frame-locked: they move with /tf)
 
 The estimator frame E is drawn as W: the estimators start in W (the take-off point surveyed),
 so the gap between `/poses/vehicle` and an estimate is the estimate's error. Run folders do not
@@ -27,6 +29,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import register_schema
@@ -34,6 +37,9 @@ from mcap_protobuf.schema import register_schema
 from alight.diagrams.running.run_log import RunFolderError, RunLog
 
 WORLD = "world"
+# Boxes drawn on the frames in Foxglove's 3D panel: size [m] and colour (r, g, b, a).
+SHAPES = {"vehicle": ((0.55, 0.55, 0.15), (0.1, 0.3, 0.9, 1.0)),   # the F550's span
+          "target": ((1.5, 1.5, 0.05), (0.9, 0.4, 0.0, 0.8))}     # the platform, DESIGN.md
 
 
 class ExportError(RunFolderError):
@@ -109,6 +115,7 @@ def export_mcap(run_dir: str | Path, out: str | Path | None = None) -> Path:
             for track in tracks:
                 _write_track(mcap, track, *samples[track])
             _write_log(mcap, "/mission", transitions)
+            _write_scene(mcap, [track.frame for track in tracks if samples[track][0].size])
             mcap.writer.finish()
         partial.replace(out)
     finally:
@@ -230,3 +237,19 @@ def _write_log(out: _McapOut, topic: str, entries: list[tuple[float, str]]) -> N
         message = Log(level=Log.INFO, message=text, name="mission")
         message.timestamp.FromNanoseconds(_ns(at))
         out.add(channel, at, message.SerializeToString(), sequence)
+
+
+def _write_scene(out: _McapOut, frames: list[str]) -> None:
+    """/scene: one SceneUpdate at t = 0 with a frame-locked box per frame of SHAPES present."""
+    update = SceneUpdate()
+    for frame in frames:
+        if frame not in SHAPES:
+            continue
+        size, color = SHAPES[frame]
+        entity = update.entities.add(frame_id=frame, id=frame, frame_locked=True)
+        cube = entity.cubes.add()
+        cube.pose.orientation.w = 1.0
+        cube.size.x, cube.size.y, cube.size.z = size
+        cube.color.r, cube.color.g, cube.color.b, cube.color.a = color
+    if update.entities:
+        out.add(out.protobuf_channel("/scene", SceneUpdate), 0.0, update.SerializeToString())
