@@ -88,6 +88,12 @@ def emulated_parameters(flight_controller, rules, system_id: int,
                   fixed_why="hw/endpoint.py"),
         Parameter("SYS_HITL", INT32, lambda: 1, fixed_why="simulated vehicle"),
     ]
+    hold = rules.params.hold  # Hold/Position's controller, read at every command
+    for name, field in (("MPC_XY_P", "xy_p"), ("MPC_Z_P", "z_p"),
+                        ("MPC_XY_VEL_P_ACC", "xy_vel_p_acc"), ("MPC_XY_VEL_I_ACC", "xy_vel_i_acc"),
+                        ("MPC_Z_VEL_P_ACC", "z_vel_p_acc"), ("MPC_Z_VEL_I_ACC", "z_vel_i_acc"),
+                        ("MPC_Z_VEL_MAX_DN", "z_vel_max"), ("MPC_TILTMAX_AIR", "tiltmax_air")):
+        table.append(Parameter(name, REAL32, **_field(hold, field)))
     for axis, name in enumerate(("ROLL", "PITCH", "YAW")):
         table.append(Parameter(f"MC_{name}_P", REAL32, **_field(attitude, "gain", axis)))
         table.append(Parameter(f"MC_{name}RATE_MAX", REAL32, **_field(

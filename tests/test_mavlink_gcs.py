@@ -72,6 +72,8 @@ def test_parameters_list_read_and_set_change_the_emulation_they_name():
     assert rules.stale_timeout == pytest.approx(1.5)
     gcs.answer(param_set("MC_PITCH_P", 4.0))
     assert flight_controller.attitude.gain == pytest.approx([6.0, 4.0, 2.8])
+    gcs.answer(param_set("MPC_TILTMAX_AIR", 20.0))
+    assert rules.params.hold.tiltmax_air == 20.0
     [answer] = gcs.answer(param_set("COM_OBL_RC_ACT", struct.unpack("<f", struct.pack("<i", 5))[0],
                                     INT32))
     assert rules.params.com_obl_rc_act == 5 and isinstance(rules.params.com_obl_rc_act, int)
