@@ -52,8 +52,8 @@ class TargetEstimatorParams:
     reinit_after: float = bounded(0.5, 0.0, 60.0, "s")
     lost_timeout: float = bounded(2.0, 0.0, 600.0, "s")
     # unlabelled keypoint candidates (the geometric camera): detection's verification
-    candidate_match_radius: float = bounded(6.0, 0.1, 100.0, "px")
-    candidate_min_verified: int = bounded(3, 0, 5)
+    candidate_match_radius: float = bounded(3.0, 0.1, 100.0, "px")
+    candidate_min_verified: int = bounded(4, 0, 5)
     detector: DetectorParams = dc.field(default_factory=DetectorParams)
     tracker: KeypointTrackerParams = dc.field(default_factory=KeypointTrackerParams)
     ekf: TargetEkfParams = dc.field(default_factory=TargetEkfParams)
@@ -233,6 +233,17 @@ class TargetEstimator(LeafSystem):
         status[PERCEPTION_STATUS.slice("accepted")] = accepted
         status[PERCEPTION_STATUS.slice("rejected")] = rejected
         status[PERCEPTION_STATUS.slice("detected")] = detected
+
+    def front_end(self, frame: CameraFrame, X_CT_predicted: RigidTransform | None = None,
+                  R_CT_reference=None, z_up_C=None):
+        """What the front end makes of one frame, without the filter (for the calibration bench
+        and tests): (the detection (X_CT, [(keypoint id, rectified pixel)]) or None, the keypoints
+        tracked from `X_CT_predicted` [(id, rectified pixel)], empty without a prediction)."""
+        lens = Lens.from_calibration(frame.calibration)
+        images = self._images(frame, lens)
+        tracked = [] if X_CT_predicted is None else \
+            self._track(frame, images, lens, X_CT_predicted)
+        return self._detect(frame, images, lens, R_CT_reference, z_up_C), tracked
 
     # --- steps ----------------------------------------------------------------------------------
     def _keypoint_tracker(self) -> KeypointTracker:

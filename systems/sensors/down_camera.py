@@ -53,9 +53,11 @@ class DownCameraParams:
     border_margin: float = bounded(10.0, 0.0, 1000.0, "px")
     max_view_angle: float = bounded(80.0, 0.0, 90.0, "deg")
     exposure: float = bounded(0.005, 0.0, 0.1, "s")
-    blur_halving: float = bounded(20.0, 0.1, 1e4, "px")
-    size_halving: float = bounded(25.0, 0.0, 1e4, "px")
-    size_width: float = bounded(4.0, 0.1, 1e4, "px")
+    blur_halving: float = bounded(28.0, 0.0, 1e4, "px")
+    blur_width: float = bounded(3.0, 0.1, 1e4, "px")
+    blur_noise: float = bounded(0.08, 0.0, 10.0, "px/px")
+    size_halving: float = bounded(36.0, 0.0, 1e4, "px")
+    size_width: float = bounded(5.0, 0.1, 1e4, "px")
     outlier_probability: float = bounded(0.02, 0.0, 1.0)
     outlier_radius: float = bounded(25.0, 0.0, 1000.0, "px")
     false_pattern_rate: float = bounded(0.3, 0.0, 100.0, "per frame")
@@ -177,12 +179,12 @@ class GeometricDownCamera(TimedCamera):
     - the pattern's keypoints within the field, the image (minus `border_margin`) and
       `max_view_angle`, and not behind one of the vehicle's own legs (`legs`: capsules in B, from
       the airframe's SDF); the pattern is found in a frame with probability
-      `exp(-ln 2 (b / blur_halving)^2) / (1 + exp(-(s - size_halving) / size_width))`,
-      b the motion blur [px] of the pattern's centre over `exposure` (the vehicle's and the
-      platform's velocities), s the white square's side [px]; each keypoint is then missed with
-      `keypoint_dropout`;
-    - pixel noise `keypoint_noise_std`, and with `outlier_probability` a keypoint displaced by up
-      to `outlier_radius`;
+      `sigma((blur_halving - b) / blur_width) sigma((s - size_halving) / size_width)` (sigma the
+      logistic function), b the motion blur [px] of the pattern's centre over `exposure` (the
+      vehicle's and the platform's velocities), s the white square's side [px]; each keypoint is
+      then missed with `keypoint_dropout`;
+    - pixel noise of standard deviation `keypoint_noise_std + blur_noise b`, and with
+      `outlier_probability` a keypoint displaced by up to `outlier_radius`;
     - false candidates: a Poisson number `false_pattern_rate` per frame on the platform (look-alike
       junctions of the ring and the cross) and `false_body_rate` on the car body's outline
       (`outline_T`, its top rectangle in T), both where the camera sees them.
@@ -250,11 +252,13 @@ class GeometricDownCamera(TimedCamera):
         sent). `X_TC_before`: the camera `exposure` earlier (motion blur)."""
         p = self._params
         uv, visible = self.observe(X_TC)
-        if rng.random() >= self.detection_probability(X_TC, X_TC_before):
+        blur = self.blur(X_TC, X_TC_before)
+        if rng.random() >= self.detection_probability(X_TC, blur):
             visible[:] = False
         visible &= rng.random(len(uv)) >= p.keypoint_dropout
         ids = np.flatnonzero(visible)
-        uv = uv[ids] + p.keypoint_noise_std * rng.standard_normal((len(ids), 2))
+        noise_std = p.keypoint_noise_std + p.blur_noise * blur
+        uv = uv[ids] + noise_std * rng.standard_normal((len(ids), 2))
         outliers = rng.random(len(ids)) < p.outlier_probability
         uv[outliers] += _uniform_in_disc(rng, outliers.sum(), p.outlier_radius)
         false_uv = np.vstack([self._false_candidates(X_TC, rng, p.false_pattern_rate,
@@ -266,18 +270,23 @@ class GeometricDownCamera(TimedCamera):
         order = rng.permutation(len(uv))
         return uv[order], truth[order]
 
-    def detection_probability(self, X_TC: RigidTransform, X_TC_before: RigidTransform) -> float:
-        """Probability that the front end finds the pattern in a frame that arrives: motion blur
-        of the pattern's centre over the exposure, and the white square's size in pixels."""
-        p = self._params
+    def blur(self, X_TC: RigidTransform, X_TC_before: RigidTransform) -> float:
+        """Motion blur [px]: the image motion of the pattern's centre over the exposure (inf when
+        it is behind the camera)."""
         p_CT = [X.inverse().translation() for X in (X_TC, X_TC_before)]
         if min(q[2] for q in p_CT) <= 0.05:
+            return float("inf")
+        return float(np.linalg.norm(np.subtract(*(self._lens.project(q[None])[0] for q in p_CT))))
+
+    def detection_probability(self, X_TC: RigidTransform, blur: float) -> float:
+        """Probability that the front end finds the pattern in a frame that arrives, from the
+        motion blur [px] and the white square's side in pixels."""
+        p = self._params
+        if not np.isfinite(blur):
             return 0.0
-        blur = float(np.linalg.norm(np.subtract(*(self._lens.project(q[None])[0] for q in p_CT))))
-        side = self._lens.K[0, 0] * 2 * np.abs(self._p_TK[0, 0]) / p_CT[0][2]
-        sharp = np.exp(-np.log(2) * (blur / p.blur_halving) ** 2)
-        large = 1 / (1 + np.exp(-(side - p.size_halving) / p.size_width))
-        return float(sharp * large)
+        side = self._lens.K[0, 0] * 2 * np.abs(self._p_TK[0, 0]) / X_TC.inverse().translation()[2]
+        return float(_logistic((p.blur_halving - blur) / p.blur_width)
+                     * _logistic((side - p.size_halving) / p.size_width))
 
     def _false_candidates(self, X_TC, rng, rate: float, sample) -> np.ndarray:
         n = rng.poisson(rate)
@@ -347,6 +356,10 @@ def _moved(X_WA: RigidTransform, V_WA: SpatialVelocity, dt: float) -> RigidTrans
     R = RotationMatrix(AngleAxis(float(np.linalg.norm(V_WA.rotational()) * dt),
                                  _unit(V_WA.rotational()))) @ X_WA.rotation()
     return RigidTransform(R, X_WA.translation() + V_WA.translational() * dt)
+
+
+def _logistic(x: float) -> float:
+    return 1.0 / (1.0 + np.exp(-np.clip(x, -50.0, 50.0)))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
