@@ -10,7 +10,9 @@ commands), `vehicle.motor_fault`, `camera_blackouts`. When: a landing's faults s
 first Follow phase (over the moving car), the camera blackout in Landing Phase 2 0.2 s into it,
 both found in the nominal run of the same seed (identical up to the fault); a waypoint flight's at
 4.5 s (at 2 m, on its first leg at speed). A seed whose nominal landing never reaches the phase
-has no run for that fault (counted as `n/a`).
+has no run for that fault (counted as `n/a`); a run that raises is counted as `error` with its
+message in the CSV. Each scenario is resolved once at the start (its files under models/ read
+then), so that the runs fly the same parameters however long the campaign takes.
 
     python bench/faults.py [--runs 2] [--seed 0] [--jobs 2] [--kinds landing,waypoints]
                            [--faults NAME,...] [--out runs/faults]
@@ -23,6 +25,7 @@ import argparse
 import concurrent.futures as cf
 import dataclasses as dc
 import os
+import re
 import time
 from pathlib import Path
 
@@ -32,7 +35,7 @@ from alight.diagrams.analysis.faults import OUTCOMES, UNSAFE, judge_fault_run
 from alight.diagrams.analysis.landing import mission_transitions
 from alight.diagrams.running.run_log import RunLog
 from alight.diagrams.running.runner import run
-from alight.diagrams.scenario import load_scenario
+from alight.diagrams.scenario import dump_scenario, load_scenario
 from alight.systems.mission.landing import Mode
 
 KINDS = {"landing": "field", "waypoints": "waypoints"}   # flight kind -> scenario
@@ -44,6 +47,9 @@ BLACKOUT = 3.0                  # s of camera blackout
 # mission's budget and the landing scenario's 75 s, so that a failsafe descent without a usable
 # estimate reaches its max_descent_time (60 s)
 MAX_DURATION = 120.0
+ERROR, NOT_APPLICABLE = "error", "n/a"     # a run that raised; a phase the nominal never reached
+COLUMNS = ["fault", "kind", "seed", "outcome", "reason", "failsafe", "distance",
+           "peak_leg_force", "touchdown_speed", "sim_s", "cpu_s", "run_dir", "overrides"]
 
 
 @dc.dataclass(frozen=True)
@@ -87,17 +93,21 @@ FAULTS = [
 ]
 
 
-def fly(kind: str, fault: str, seed: int, overrides: list[str], out: Path) -> dict:
-    """One run; its row (fault, kind, seed, the judged outcome, CPU time)."""
+def fly(kind: str, base: str, fault: str, seed: int, overrides: list[str], out: Path) -> dict:
+    """One run of the resolved scenario YAML `base` with `overrides`; its row (fault, kind,
+    seed, the judged outcome, CPU time). A run that raises is an `error` row with the message
+    (a campaign keeps its other rows)."""
     start = time.process_time()
-    run_dir = out / f"{kind}-{fault.replace(' ', '_').replace('%', 'pc')}-s{seed}"
-    scenario = load_scenario(KINDS[kind], overrides=[f"random_seed: {seed}", *overrides])
-    log = run(scenario, run_dir=run_dir, command="faults",
-              duration=MAX_DURATION)
-    judged = judge_fault_run(log)
-    return {"fault": fault, "kind": kind, "seed": seed, **dc.asdict(judged),
-            "cpu_s": time.process_time() - start, "sim_s": log.metadata["duration"],
-            "run_dir": str(run_dir), "overrides": "; ".join(overrides)}
+    run_dir = out / f"{kind}-{re.sub(r'[^A-Za-z0-9.]+', '_', fault).strip('_')}-s{seed}"
+    row = {"fault": fault, "kind": kind, "seed": seed, "run_dir": str(run_dir),
+           "overrides": "; ".join(overrides)}
+    try:
+        scenario = load_scenario(data=base, overrides=[f"random_seed: {seed}", *overrides])
+        log = run(scenario, run_dir=run_dir, command="faults", duration=MAX_DURATION)
+        row.update(dc.asdict(judge_fault_run(log)), sim_s=log.metadata["duration"])
+    except Exception as error:   # noqa: BLE001 - reported in the table, not lost
+        row.update(outcome=ERROR, reason=f"{type(error).__name__}: {error}"[:200])
+    return {**row, "cpu_s": time.process_time() - start}
 
 
 def fault_time(nominal: RunLog, fault: Fault, kind: str) -> float | None:
@@ -113,8 +123,10 @@ def fault_time(nominal: RunLog, fault: Fault, kind: str) -> float | None:
 def campaign(kinds, faults, seeds, jobs: int, out: Path) -> pd.DataFrame:
     """Nominal runs first (they time the landing faults), then every fault, `jobs` at a time."""
     rows, missing = [], []
+    # Each scenario resolved once, its files read now: the runs read no file under models/.
+    bases = {kind: dump_scenario(load_scenario(KINDS[kind])) for kind in kinds}
     with cf.ProcessPoolExecutor(jobs) as pool:
-        nominal = {(kind, seed): pool.submit(fly, kind, "none", seed, [], out)
+        nominal = {(kind, seed): pool.submit(fly, kind, bases[kind], "none", seed, [], out)
                    for kind in kinds for seed in seeds}
         futures = []
         for (kind, seed), future in nominal.items():
@@ -123,24 +135,34 @@ def campaign(kinds, faults, seeds, jobs: int, out: Path) -> pd.DataFrame:
             for fault in faults:
                 if fault.name == "none" or kind not in fault.kinds:
                     continue
-                t = fault_time(RunLog(row["run_dir"]), fault, kind)
+                t = fault_time(RunLog(row["run_dir"]), fault, kind) \
+                    if row["outcome"] != ERROR else None
                 if t is None:
                     missing.append({"fault": fault.name, "kind": kind, "seed": seed,
-                                    "outcome": "n/a"})
+                                    "outcome": NOT_APPLICABLE})
                     continue
-                futures.append(pool.submit(fly, kind, fault.name, seed, fault.overrides(t),
-                                           out))
-        rows += [future.result() for future in cf.as_completed(futures)]
-    table = pd.DataFrame(rows + missing)
-    table.to_csv(out / "faults.csv", index=False)
-    return table
+                futures.append(pool.submit(fly, kind, bases[kind], fault.name, seed,
+                                           fault.overrides(t), out))
+        for row in rows + missing:
+            _append(out, row)
+        for future in cf.as_completed(futures):
+            rows.append(_append(out, future.result()))
+    return pd.DataFrame(rows + missing)
+
+
+def _append(out: Path, row: dict) -> dict:
+    """One row into OUT/faults.csv as soon as its run is judged (a cut campaign keeps them)."""
+    path = out / "faults.csv"
+    pd.DataFrame([row]).reindex(columns=COLUMNS).to_csv(path, mode="a", index=False,
+                                                        header=not path.exists())
+    return row
 
 
 def summary(table: pd.DataFrame, faults) -> pd.DataFrame:
     """Counts per outcome for each (fault, kind), in FAULTS order, with the unsafe reasons."""
     order = {fault.name: i for i, fault in enumerate(faults)}
     counts = table.groupby(["fault", "kind"])["outcome"].value_counts().unstack(fill_value=0)
-    counts = counts.reindex(columns=[*OUTCOMES, "n/a"], fill_value=0)
+    counts = counts.reindex(columns=[*OUTCOMES, ERROR, NOT_APPLICABLE], fill_value=0)
     unsafe = table[table["outcome"] == UNSAFE].groupby(["fault", "kind"])["reason"].agg(
         lambda reasons: "; ".join(sorted(set(reasons))))
     counts["unsafe reasons"] = unsafe.reindex(counts.index).fillna("")
@@ -168,12 +190,13 @@ def main():
         parser.error(f"--kinds from {list(KINDS)}, --faults from {sorted(names)}, --runs >= 1")
     faults = [fault for fault in FAULTS if fault.name in wanted]
     args.out.mkdir(parents=True, exist_ok=True)
-    wall, cpu = time.time(), time.process_time()
+    (args.out / "faults.csv").unlink(missing_ok=True)
+    wall = time.time()
     table = campaign(kinds, faults, range(args.seed, args.seed + args.runs), args.jobs, args.out)
     with pd.option_context("display.width", 200, "display.max_columns", 20,
                            "display.max_colwidth", 60):
         print(summary(table, faults).to_string())
-    flown = table.dropna(subset=["cpu_s"])
+    flown = table.dropna(subset=["sim_s"])
     print(f"{len(flown)} runs ({args.runs} seeds from {args.seed}) in {time.time() - wall:.0f} s "
           f"wall, {flown['cpu_s'].sum():.0f} CPU s in the runs ({flown['sim_s'].sum():.0f} s "
           f"simulated); load average {os.getloadavg()[0]:.1f}; rows in {args.out / 'faults.csv'}")
