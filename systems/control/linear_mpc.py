@@ -133,7 +133,7 @@ class LinearMpcQp:
                                   p.weight_rates])
         self.W = np.tile(w_state, N)
         self.Rw = np.tile(p.weight_input, N)
-        G = soft_constraint_rows()
+        G = self._G = soft_constraint_rows()
         self.G_bar = np.kron(np.eye(N), G)
         h_step = np.repeat(np.concatenate([p.max_velocity, np.radians([p.max_tilt] * 2)]), 2)
         self.h = np.tile(h_step, N)
@@ -169,8 +169,8 @@ class LinearMpcQp:
             np.hstack([self.GGamma, -np.kron(np.eye(num_slacks), np.ones((2, 1)))]),
             np.full(len(self.h), -np.inf),
             self.h.copy(), np.concatenate([self.u, self.s]))
-        self._u_index = self.prog.FindDecisionVariableIndices(self.u)
-        self._s_index = self.prog.FindDecisionVariableIndices(self.s)
+        self._u_index = np.asarray(self.prog.FindDecisionVariableIndices(self.u), np.intp)
+        self._s_index = np.asarray(self.prog.FindDecisionVariableIndices(self.s), np.intp)
         self.persistent = PersistentOsqp(self.prog, p.osqp_eps) if p.solver == "persistent" \
             else PersistentDaqp(self.prog, p.slack_regularization) if p.solver == "daqp" \
             else None
@@ -187,13 +187,11 @@ class LinearMpcQp:
         acceleration disturbance d (N frame)."""
         free = self.Phi @ x0 + self.Psi @ d  # the predicted states with zero inputs
         f = self.Gamma.T @ (self.W * (free - s_y)) - self.Rw * s_u
-        if u_previous is not None:
-            e = np.zeros(len(f))
-            e[:NUM_INPUTS] = u_previous
-            f -= self.D.T @ (self.Wd * e)
+        if u_previous is not None:  # D^T (Wd * e) with e = [u_previous, 0...]: first block only
+            f -= self.D[:NUM_INPUTS].T @ (self.Wd[:NUM_INPUTS] * u_previous)
         self.cost.evaluator().UpdateCoefficients(2.0 * f)
         bound = self.h.copy()
-        bound[:self.num_state_rows] -= self.G_bar @ free
+        bound[:self.num_state_rows] -= (free.reshape(self.N, NUM_STATES) @ self._G.T).ravel()
         self.soft.evaluator().UpdateUpperBound(bound)
 
     def solve(self) -> QpResult:
@@ -230,6 +228,7 @@ class LinearMpc(Controller):
         super().__init__(params.period, self._hover_command(0.0, 0.0))
         self._qp = LinearMpcQp(model, params)
         N = params.horizon_steps
+        self._step_times = np.arange(1, N + 1) * params.period  # s, of the predicted states
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._solution = self.DeclareDiscreteState(np.full(N * NUM_INPUTS, np.nan))
         self._failures = self.DeclareDiscreteState(1)
@@ -263,12 +262,14 @@ class LinearMpc(Controller):
         N, dt, m = self._p.horizon_steps, self._p.period, self._model
         v_N = rotate_to_navigation(REFERENCE.get(reference, "v"), yaw)
         s_y = np.zeros((N, NUM_STATES))
-        s_y[:, 0:3] = np.outer(np.arange(1, N + 1) * dt, v_N)
+        s_y[:, 0:3] = self._step_times[:, None] * v_N
         s_y[:, 3:6] = v_N
         hold = np.array([(m.c_x * v_N[0] - d_N[0]) / GRAVITY,
                          (d_N[1] - m.c_y * v_N[1]) / GRAVITY, m.c_z * v_N[2] - d_N[2]])
         s_y[:, 6:8] = hold[:2]
-        return s_y.ravel(), np.tile(hold, N)
+        s_u = np.empty((N, NUM_INPUTS))
+        s_u[:] = hold
+        return s_y.ravel(), s_u.ravel()
 
     def _update_inactive(self, context, discrete_state):
         """Follows the issued command; no failures, no prediction to compare with."""

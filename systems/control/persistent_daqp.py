@@ -41,6 +41,9 @@ class PersistentDaqp:
         flat = np.all(H == 0.0, axis=1)  # variables without curvature of their own
         H[flat, flat] = regularization
         self._general = self.qp.box_variable < 0
+        self._box_rows = np.flatnonzero(~self._general)
+        self._box_variables = self.qp.box_variable[self._box_rows]
+        self._boxes_overlap = len(np.unique(self._box_variables)) < len(self._box_variables)
         lower, upper = self._bounds()
         sense = np.zeros(len(upper), np.int32)
         sense[n:][lower[n:] == upper[n:]] = ACTIVE | IMMUTABLE
@@ -58,9 +61,12 @@ class PersistentDaqp:
         lower_rows, upper_rows = self.qp.bounds()
         n = self.qp.num_vars
         lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
-        box = ~self._general
-        np.maximum.at(lower, self.qp.box_variable[box], lower_rows[box])
-        np.minimum.at(upper, self.qp.box_variable[box], upper_rows[box])
+        if self._boxes_overlap:  # a variable in several bounding boxes: their intersection
+            np.maximum.at(lower, self._box_variables, lower_rows[self._box_rows])
+            np.minimum.at(upper, self._box_variables, upper_rows[self._box_rows])
+        else:
+            lower[self._box_variables] = lower_rows[self._box_rows]
+            upper[self._box_variables] = upper_rows[self._box_rows]
         lower = np.concatenate([lower, lower_rows[self._general]])
         upper = np.concatenate([upper, upper_rows[self._general]])
         return np.maximum(lower, -BIG), np.minimum(upper, BIG)

@@ -40,23 +40,30 @@ class ProgramQp:
         self._linear = [(b, self._index(b)) for b in prog.linear_costs()]
         self.P = np.zeros((n, n))
         for binding, index in self._quadratic:
-            self.P[np.ix_(index, index)] += binding.evaluator().Q()
+            rows = np.arange(n)[index]
+            self.P[np.ix_(rows, rows)] += binding.evaluator().Q()
         rows, box_variable = [], []
         for binding in self._constraints:
             index = self._index(binding)
             evaluator = binding.evaluator()
             is_box = not hasattr(evaluator, "GetDenseA")
-            dense = np.eye(len(index)) if is_box else evaluator.GetDenseA()
+            variables = np.arange(n)[index]
+            dense = np.eye(len(variables)) if is_box else evaluator.GetDenseA()
             block = np.zeros((evaluator.num_constraints(), n))
-            block[:, index] = dense
+            block[:, variables] = dense
             rows.append(block)
-            box_variable.append(np.asarray(index) if is_box else np.full(len(dense), -1))
+            box_variable.append(variables if is_box else np.full(len(dense), -1))
         self.A = np.vstack(rows) if rows else np.zeros((0, n))
         self.box_variable = np.concatenate(box_variable).astype(int) if rows \
             else np.zeros(0, int)
 
-    def _index(self, binding) -> list[int]:
-        return self.prog.FindDecisionVariableIndices(binding.variables())
+    def _index(self, binding) -> slice | np.ndarray:
+        """The binding's variables' positions: a slice where contiguous (NumPy indexes a slice
+        without building an index array, which dominated the per-tick gather otherwise)."""
+        index = np.asarray(self.prog.FindDecisionVariableIndices(binding.variables()), np.intp)
+        if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+            return slice(int(index[0]), int(index[0]) + len(index))
+        return index
 
     def q(self) -> np.ndarray:
         """The linear cost term, sum of the quadratic costs' b and the linear costs' a."""
