@@ -96,9 +96,12 @@ class HilResult:
     report: RealtimeReport
     run_dir: Path
     link_rates: dict
+    finished: bool | None = None  # the mission ended the flight; None: a stack without an end
 
     def lines(self) -> list[str]:
-        return self.report.lines() + [f"run folder        {self.run_dir}"]
+        return self.report.lines() + (["mission           did not finish"]
+                                      if self.finished is False else []) \
+            + [f"run folder        {self.run_dir}"]
 
 
 def run_hil(connect: str, scenario: Scenario, params: MavlinkVehicleParams,
@@ -163,7 +166,8 @@ def run_hil(connect: str, scenario: Scenario, params: MavlinkVehicleParams,
             "autopilot_clock_offset": -link.to_local(0.0),
             "mission_finished": onboard.finished is not None
             and onboard.finished.at is not None, "arming_errors": sender.last_error})
-        return HilResult(report, run_dir, rates)
+        return HilResult(report, run_dir, rates, None if onboard.finished is None
+                         else onboard.finished.at is not None)
     finally:
         link.close()
         if frames is not None:

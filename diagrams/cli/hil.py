@@ -92,7 +92,7 @@ def run(args) -> int:
         from alight.diagrams.running.run_log import RunLog
         for at, mode, reason in mission_transitions(RunLog(result.run_dir)):
             print(f"  {at:6.2f} s  {mode.name:11s} ({reason.name.lower().replace('_', ' ')})")
-    return 1 if result.report.error else 0
+    return 1 if result.report.error or result.finished is False else 0
 
 
 @contextlib.contextmanager
