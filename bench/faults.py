@@ -6,7 +6,9 @@ actuator, hard impact, flyaway beyond 10 m of the mission's area).
 
 Every fault is an override of the scenario (so each run folder's scenario.yaml pins it):
 `faults.estimate` (estimate lost, jump, noise), `faults.command` (NaN / out-of-range linear MPC
-commands), `vehicle.motor_fault`, `camera_blackouts`. When: a landing's faults start 1 s into its
+commands), `vehicle.motor_fault`, `vehicle.link_losses` (the command link lost: the flight
+controller keeps the last command that got through, its stale-command failsafe acts),
+`camera_blackouts`. When: a landing's faults start 1 s into its
 first Follow phase (over the moving car), the camera blackout in Landing Phase 2 0.2 s into it,
 both found in the nominal run of the same seed (identical up to the fault); a waypoint flight's at
 4.5 s (at 2 m, on its first leg at speed). A seed whose nominal landing never reaches the phase
@@ -18,8 +20,9 @@ then), so that the runs fly the same parameters however long the campaign takes.
                            [--faults NAME,...] [--out runs/faults]
 
 Prints one row per fault and flight kind with the counts per outcome and the unsafe reasons,
-and writes every run's row to OUT/faults.csv. MAVLink link loss is not in this campaign: it needs
-the HIL pair of processes (tests/test_mavlink_hil.py), not a simulated fault.
+and writes every run's row to OUT/faults.csv. The link loss is simulated at the vehicle's
+`fc_command` input; over a real MAVLink link (`alight hil` against `alight sim-autopilot`,
+tests/test_mavlink_hil.py) it is not part of this campaign.
 """
 import argparse
 import concurrent.futures as cf
@@ -88,6 +91,7 @@ FAULTS = [
     Fault("out-of-range commands (1 s)", _command("out_of_range")),
     Fault("estimator jump 5 m", _estimate(jump="[5.0, 0.0, 0.0]")),
     *[Fault(f"estimator noise {s:g} m", _estimate(noise_std=s)) for s in (0.1, 1.0, 2.0)],
+    Fault("command link lost 2 s", lambda t: [f"vehicle.link_losses: [[{t:.3f}, {t + 2:.3f}]]"]),
     Fault("motor -30 % thrust", lambda t: [f"vehicle.motor_fault: {{loss: 0.3, rotor: 0, "
                                            f"time: {t:.3f}}}"]),
 ]

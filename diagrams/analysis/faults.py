@@ -13,8 +13,9 @@ Unsafe, the first of:
 Safe, then:
 - `landed`: the mission's own success (a landing scored by `score_landing`; a waypoint flight
   that flew its plan, no failsafe, landed and disarmed at rest on its legs);
-- `failsafe landing`: the failsafe took over (the switch's or the manager's `manager_status`
-  mode FAILSAFE) and the vehicle ended at rest on its legs, disarmed;
+- `failsafe landing`: a failsafe took over (the switch's or the manager's `manager_status` mode
+  FAILSAFE, or the flight controller's own failsafe descent on a lost command link) and the
+  vehicle ended at rest on its legs, disarmed;
 - `not landed`: anything else (e.g. a landing that missed the platform, a flight still in the air
   when the time ran out), with the reason.
 """
@@ -25,6 +26,7 @@ import numpy as np
 from alight.diagrams.analysis.landing import (AIRBORNE, REST_SPEED, REST_WINDOW, contact_began,
                                               first_index, pinned_scenario, score_landing)
 from alight.diagrams.running.run_log import RunLog
+from alight.systems.boundary import ActiveMode
 from alight.systems.managers.control_manager import ManagerMode
 
 FLYAWAY = 10.0     # m, horizontal, beyond the mission's area: a flyaway
@@ -37,7 +39,7 @@ OUTCOMES = (LANDED, FAILSAFE_LANDING, NOT_LANDED, UNSAFE)
 class FaultOutcome:
     outcome: str          # one of OUTCOMES
     reason: str           # why (unsafe: nan at actuator / hard impact / flyaway, with figures)
-    failsafe: bool        # the failsafe took over
+    failsafe: bool        # a failsafe took over (onboard, or the flight controller's)
     distance: float       # m, the largest horizontal distance from the mission's area
     peak_leg_force: float  # N
     touchdown_speed: float  # m/s, down, relative to what the legs first touched (nan: none)
@@ -68,7 +70,9 @@ def judge_fault_run(run: RunLog) -> FaultOutcome:
     t = truth["time"].to_numpy()
     field = lambda name: run.field("ground_truth", name).to_numpy()
     p_B, v_B, v_T = field("p_WB"), field("v_WB"), field("v_WT")
-    failsafe = bool(np.any(run["manager_status"]["mode"].to_numpy() == ManagerMode.FAILSAFE))
+    failsafe = bool(np.any(run["manager_status"]["mode"].to_numpy() == ManagerMode.FAILSAFE)
+                    or np.any(run["fc_status"]["mode"].to_numpy()
+                              == ActiveMode.FAILSAFE_DESCENT))
     peak = float(truth["peak_leg_force"].iloc[-1])
     limit = scenario["vehicle"]["airframe"]["max_leg_force"]
     vertical_limit = scenario["scoring"]["impact"]["vertical_speed"]

@@ -27,6 +27,7 @@ from alight.systems.plant.motor_fault import MotorFault, MotorFaultParams
 from alight.systems.plant.motors import EscThrustMap, first_order_motors
 from alight.systems.plant.tether import Tether, TetherParams
 from alight.systems.plant.wind import Wind, WindParams
+from alight.systems.sensors.command_faults import LinkLoss
 from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.sensors.fc_estimate import FcEstimate, FcEstimateParams
 from alight.systems.sensors.ground_truth import GroundTruth
@@ -58,6 +59,7 @@ class SimVehicleConfig:
     rgbd_camera: RgbdCameraParams = dc.field(default_factory=RgbdCameraParams)  # the VIO camera
     tether: TetherParams = dc.field(default_factory=TetherParams)  # enabled false: none
     motor_fault: MotorFaultParams = dc.field(default_factory=MotorFaultParams)  # loss 0: none
+    link_losses: list[list[float]] = dc.field(default_factory=list)  # command link lost [s]
 
 
 def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleConfig:
@@ -180,7 +182,12 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
         from alight.diagrams.world.visualization import add_meshcat_visualizer
         add_meshcat_visualizer(builder, scene_graph, meshcat)
 
-    builder.ExportInput(fc.GetInputPort("fc_command"), "fc_command")
+    if config.link_losses:
+        link = builder.AddNamedSystem("link_loss", LinkLoss(config.link_losses))
+        builder.Connect(link.get_output_port(), fc.GetInputPort("fc_command"))
+        builder.ExportInput(link.get_input_port(), "fc_command")
+    else:
+        builder.ExportInput(fc.GetInputPort("fc_command"), "fc_command")
     builder.ExportInput(fc.GetInputPort("odometry"), "odometry")
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
     builder.ExportOutput(estimate.GetOutputPort("fc_attitude"), "fc_attitude")

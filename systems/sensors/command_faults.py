@@ -56,3 +56,38 @@ class CommandFaults(LeafSystem):
         t = context.get_time()
         within = self._p.start <= t < self._p.start + self._p.duration
         output.SetFromVector(faulty_command(command, self._p) if within else command)
+
+
+class LinkLoss(LeafSystem):
+    """The command link of the simulated vehicle losing messages (a MAVLink link loss, simulation
+    only): within each window [(start, end), ...] [s] the flight controller keeps receiving the
+    last command that got through before it, so its stamp goes stale and the flight controller's
+    own stale-command failsafe acts (PX4's offboard loss, systems/autopilot/commander.py).
+    Input `fc_command` FC_COMMAND as sent; output `fc_command` FC_COMMAND as received. The
+    command getting through is sampled every `period` [s]."""
+
+    def __init__(self, windows, period: float = 0.002):
+        super().__init__()
+        self._windows = np.asarray(windows, float).reshape(-1, 2)
+        if not np.all(np.isfinite(self._windows)) or np.any(self._windows[:, 1]
+                                                            < self._windows[:, 0]):
+            raise ValueError(f"link loss windows must be finite (start, end) pairs, got "
+                             f"{windows!r}")
+        self._command = self.DeclareVectorInputPort("fc_command", FC_COMMAND.size)
+        self._received = self.DeclareDiscreteState(np.full(FC_COMMAND.size, np.nan))
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc,
+                                     {self.all_input_ports_ticket(), self.all_state_ticket(),
+                                      self.time_ticket()})
+
+    def _lost(self, t: float) -> bool:
+        return bool(np.any((self._windows[:, 0] <= t) & (t < self._windows[:, 1])))
+
+    def _update(self, context, discrete_state):
+        if not self._lost(context.get_time()):
+            discrete_state.set_value(self._received, self._command.Eval(context))
+
+    def _calc(self, context, output):
+        held = context.get_discrete_state(self._received).get_value()
+        output.SetFromVector(held if self._lost(context.get_time()) and np.all(np.isfinite(held))
+                             else self._command.Eval(context))
