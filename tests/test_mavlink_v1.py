@@ -161,6 +161,15 @@ def test_sim_autopilot_arms_for_a_mavlink1_client_and_disarms_once_it_speaks_2(
         armed = wait_message(old, "HEARTBEAT", 5.0, lambda m: m.base_mode
                              & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         assert armed.get_msgbuf()[0] == MAGIC[1]
+        assert armed.base_mode & mavlink.MAV_MODE_FLAG_HIL_ENABLED  # says it is simulated
+        # A ground station's AUTOPILOT_VERSION request, the old command and the new one
+        for command, param1 in ((mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1),
+                                (mavlink.MAV_CMD_REQUEST_MESSAGE,
+                                 mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)):
+            old.mav.command_long_send(1, 1, command, 0, param1, 0, 0, 0, 0, 0, 0)
+            version = wait_message(old, "AUTOPILOT_VERSION", 10.0)
+            assert version.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            assert version.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
         # The same socket, now speaking MAVLink 2 (pymavlink switches its encoder so)
         old.mav.WIRE_PROTOCOL_VERSION = "2.0"
         new = mavlink.MAVLink(old, 255, 190, use_native=False)
