@@ -3,8 +3,8 @@ real-time rate of 1), reports overruns, and stops cleanly on Ctrl-C or SIGTERM, 
 with the vehicle's final safe command (disarm on the ground, failsafe descent in the air).
 
 A run that cannot keep real time says so once per `warn_period` of wall time, with the rate it
-achieved over that period (simulated s per wall s) and how far behind it is, instead of a line per
-late tick.
+achieved over that period (simulated s per wall s) and how far behind it is, instead of lines for
+single late ticks.
 """
 import dataclasses as dc
 import logging
