@@ -116,3 +116,17 @@ def test_tracking_in_the_searched_window_equals_the_whole_frame(rig, tracker, he
     assert len(found) == len(expected) >= 8
     for a, b in zip(found, expected):
         assert a.id == b.id and np.array_equal(a.uv, b.uv) and a.difference == b.difference
+
+
+def test_tracking_a_pattern_predicted_out_of_view_finds_nothing(rig, tracker):
+    """Predicted beside the image (the target left the view): no window, no match, no error."""
+    rectifier, keypoints = tracker
+    X_WB = RigidTransform(RollPitchYaw(0.0, 0.0, 1.0), [TARGET[0], TARGET[1], 6.0])
+    rig.set_poses(X_WB, TARGET)
+    image = rig.render(X_WB, TARGET, seed=2)
+    frame = RectifiedFrame(rectifier, image, rig.lens)
+    beside = RigidTransform([40.0, 0.0, 0.0]) @ rig.X_CT()
+    assert keypoints._window(frame, beside) is None
+    assert keypoints.track(frame, beside) == []
+    with pytest.raises(ValueError, match="outside"):
+        frame.view(0, (700.0, 0.0, 900.0, 100.0))

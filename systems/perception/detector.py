@@ -183,6 +183,9 @@ class RectifiedFrame:
         box = (0, 0, width, height) if window is None else (
             max(0, int(np.floor(window[0] / s))), max(0, int(np.floor(window[1] / s))),
             min(width, int(np.ceil(window[2] / s))), min(height, int(np.ceil(window[3] / s))))
+        if box[2] <= box[0] or box[3] <= box[1]:
+            raise ValueError(f"window {window} is outside the {self.lens.width} x "
+                             f"{self.lens.height} image")
         if box == (0, 0, width, height) or level in self._whole:
             view = _crop(self._whole_view(level), box)
         else:

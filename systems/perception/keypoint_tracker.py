@@ -68,7 +68,9 @@ class KeypointTracker:
         uv = p_C[:, :2] / p_C[:, 2:] @ K[:2, :2].T + K[:2, 2]
         grow = self._params.search_size / 2 + self._params.patch_size + 2 \
             + frame.threshold_block(0) // 2 + 4  # + the smoothing's reach
-        return (*(uv.min(axis=0) - grow), *(uv.max(axis=0) + grow))
+        x0, y0 = np.maximum(uv.min(axis=0) - grow, 0)
+        x1, y1 = np.minimum(uv.max(axis=0) + grow, [frame.lens.width, frame.lens.height])
+        return (x0, y0, x1, y1) if x1 - x0 >= 1 and y1 - y0 >= 1 else None  # else out of view
 
     def match(self, binary: np.ndarray, valid: np.ndarray, K: np.ndarray, X_CT: RigidTransform,
               ids=None) -> list[KeypointMatch]:
