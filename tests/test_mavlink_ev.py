@@ -545,3 +545,52 @@ def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     print(f"relative to the vehicle vs truth: p50 "
           f"{np.median(np.linalg.norm(error, axis=1)):.3f} m, "
           f"{100 * np.mean(np.all(np.abs(error) < 3 * std + 0.01, axis=1)):.0f} % within 3 std")
+
+
+# --- the MAVLink vehicle's ODOMETRY ---------------------------------------------------------
+
+class EstimateScript(LeafSystem):
+    """Output `state_estimate`: stamped now, at 1 m height, every 10 ms; frame 1 from 0.5 s."""
+
+    def __init__(self):
+        super().__init__()
+        state = self.DeclareDiscreteState(STATE_ESTIMATE.vector(valid=0.0))
+        self.DeclarePeriodicDiscreteUpdateEvent(0.01, 0.0, self._update)
+        self.DeclareStateOutputPort("state_estimate", state)
+
+    def _update(self, context, discrete_state):
+        t = context.get_time()
+        discrete_state.set_value(estimate(stamp=t, p_EB=[t, 0.0, 1.0],
+                                          frame_counter=float(t >= 0.5)))
+
+
+def test_the_mavlink_vehicle_sends_its_odometry_input_as_external_vision():
+    from alight.hw.link import LinkParams, MavlinkLink
+    from alight.hw.mavlink_vehicle import MavlinkVehicleParams, make_mavlink_vehicle
+    from alight.hw.realtime import WallClock, run_realtime
+    from mavlink_fake import FakeAutopilot
+    fake = FakeAutopilot()
+    link = MavlinkLink.open(fake.url, LinkParams(command_timeout=0.1), WallClock())
+    try:
+        link.wait_for_autopilot(5.0)
+        builder = DiagramBuilder()
+        vehicle = builder.AddSystem(make_mavlink_vehicle(link, MavlinkVehicleParams()))
+        source = builder.AddSystem(EstimateScript())
+        builder.Connect(source.get_output_port(), vehicle.GetInputPort("odometry"))
+        idle = builder.AddSystem(_Constant(FC_COMMAND.pack(
+            stamp=0.0, mode=1, q_WD=[1, 0, 0, 0], w_D=np.zeros(3), thrust=0.0, arm=0.0)))
+        builder.Connect(idle.get_output_port(), vehicle.GetInputPort("fc_command"))
+        run_realtime(builder.Build(), 1.0, link.clock)
+        time_sent = [(t, m) for t, m in fake.positions if m.get_type() == "ODOMETRY"]
+    finally:
+        link.close()
+        fake.close()
+    assert 27 <= len(time_sent) <= 32  # 30 Hz for 1 s
+    resets = [m.reset_counter for _, m in time_sent]
+    assert resets == sorted(resets) and resets[0] == 0 and resets[-1] == 1  # the frame switch
+    for received, message in time_sent:
+        # On the autopilot's clock: the estimate (stamped now) arrives within 50 ms
+        arrival = received - fake.start
+        assert arrival - 0.05 < message.time_usec * 1e-6 <= arrival + 0.005
+        assert message.z == pytest.approx(-1.0) and message.estimator_type == \
+            mavlink.MAV_ESTIMATOR_TYPE_VISION
