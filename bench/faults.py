@@ -102,7 +102,7 @@ def fly(kind: str, base: str, fault: str, seed: int, overrides: list[str], out: 
     seed, the judged outcome, CPU time). A run that raises is an `error` row with the message
     (a campaign keeps its other rows)."""
     start = time.process_time()
-    run_dir = out / f"{kind}-{re.sub(r'[^A-Za-z0-9.]+', '_', fault).strip('_')}-s{seed}"
+    run_dir = out / f"{kind}-{_slug(fault)}-s{seed}"
     row = {"fault": fault, "kind": kind, "seed": seed, "run_dir": str(run_dir),
            "overrides": "; ".join(overrides)}
     try:
@@ -112,6 +112,30 @@ def fly(kind: str, base: str, fault: str, seed: int, overrides: list[str], out: 
     except Exception as error:   # noqa: BLE001 - reported in the table, not lost
         row.update(outcome=ERROR, reason=f"{type(error).__name__}: {error}"[:200])
     return {**row, "cpu_s": time.process_time() - start}
+
+
+def _slug(fault: str) -> str:
+    return re.sub(r"[^A-Za-z0-9.]+", "_", fault).strip("_")
+
+
+def judge_folders(out: Path) -> pd.DataFrame:
+    """The rows of the finished run folders under `out` (a campaign still running or cut short:
+    `--judge-only`), named KIND-FAULT-sSEED as `fly` names them."""
+    names = {f"{kind}-{_slug(fault.name)}": (kind, fault.name) for fault in FAULTS
+             for kind in KINDS}
+    rows = []
+    for folder in sorted(out.iterdir()):
+        prefix, _, seed = folder.name.rpartition("-s")
+        if prefix not in names or not (folder / "metadata.json").exists():
+            continue
+        log = RunLog(folder)
+        if not log.metadata.get("complete"):
+            continue
+        kind, fault = names[prefix]
+        rows.append({"fault": fault, "kind": kind, "seed": int(seed),
+                     **dc.asdict(judge_fault_run(log)), "sim_s": log.metadata["duration"],
+                     "run_dir": str(folder)})
+    return pd.DataFrame(rows)
 
 
 def fault_time(nominal: RunLog, fault: Fault, kind: str) -> float | None:
@@ -185,6 +209,8 @@ def main():
     parser.add_argument("--kinds", default=",".join(KINDS))
     parser.add_argument("--faults", default=None, help="comma-separated names (default: all)")
     parser.add_argument("--out", type=Path, default=Path("runs/faults"))
+    parser.add_argument("--judge-only", action="store_true",
+                        help="fly nothing: the table of the finished run folders under --out")
     args = parser.parse_args()
     kinds = args.kinds.split(",")
     unknown = [kind for kind in kinds if kind not in KINDS]
@@ -193,6 +219,11 @@ def main():
     if unknown or wanted - names or args.runs < 1:
         parser.error(f"--kinds from {list(KINDS)}, --faults from {sorted(names)}, --runs >= 1")
     faults = [fault for fault in FAULTS if fault.name in wanted]
+    if args.judge_only:
+        table = judge_folders(args.out)
+        print(summary(table, faults).to_string())
+        print(f"{len(table)} finished runs under {args.out}")
+        return
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "faults.csv").unlink(missing_ok=True)
     wall = time.time()
