@@ -42,6 +42,7 @@ class PersistentDaqp:
         H[flat, flat] = regularization
         self._general = self.qp.box_variable < 0
         self._box_rows = np.flatnonzero(~self._general)
+        self._general_rows = np.flatnonzero(self._general)
         self._box_variables = self.qp.box_variable[self._box_rows]
         self._boxes_overlap = len(np.unique(self._box_variables)) < len(self._box_variables)
         lower, upper = self._bounds()
@@ -60,16 +61,16 @@ class PersistentDaqp:
         """DAQP's bounds: the simple bounds of every variable, then the general rows."""
         lower_rows, upper_rows = self.qp.bounds()
         n = self.qp.num_vars
-        lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
+        m = n + len(self._general_rows)
+        lower, upper = np.full(m, -BIG), np.full(m, BIG)
         if self._boxes_overlap:  # a variable in several bounding boxes: their intersection
             np.maximum.at(lower, self._box_variables, lower_rows[self._box_rows])
             np.minimum.at(upper, self._box_variables, upper_rows[self._box_rows])
         else:
             lower[self._box_variables] = lower_rows[self._box_rows]
             upper[self._box_variables] = upper_rows[self._box_rows]
-        lower = np.concatenate([lower, lower_rows[self._general]])
-        upper = np.concatenate([upper, upper_rows[self._general]])
-        return np.maximum(lower, -BIG), np.minimum(upper, BIG)
+        lower[n:], upper[n:] = lower_rows[self._general_rows], upper_rows[self._general_rows]
+        return np.maximum(lower, -BIG, out=lower), np.minimum(upper, BIG, out=upper)
 
     def solve(self) -> QpResult:
         """Solves with the program's current linear cost terms and bounds, from the previous

@@ -54,6 +54,8 @@ class ProgramQp:
             rows.append(block)
             box_variable.append(variables if is_box else np.full(len(dense), -1))
         self.A = np.vstack(rows) if rows else np.zeros((0, n))
+        ends = np.cumsum([len(block) for block in rows]).tolist()
+        self._row_slices = [slice(end - len(block), end) for end, block in zip(ends, rows)]
         self.box_variable = np.concatenate(box_variable).astype(int) if rows \
             else np.zeros(0, int)
 
@@ -76,8 +78,8 @@ class ProgramQp:
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """l and u of the rows of A (+-inf where unbounded)."""
-        if not self._constraints:
-            return np.zeros(0), np.zeros(0)
-        evaluators = [b.evaluator() for b in self._constraints]
-        return (np.concatenate([e.lower_bound() for e in evaluators]),
-                np.concatenate([e.upper_bound() for e in evaluators]))
+        lower, upper = np.empty(len(self.A)), np.empty(len(self.A))
+        for binding, rows in zip(self._constraints, self._row_slices):
+            evaluator = binding.evaluator()
+            lower[rows], upper[rows] = evaluator.lower_bound(), evaluator.upper_bound()
+        return lower, upper
