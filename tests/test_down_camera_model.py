@@ -205,12 +205,11 @@ def test_wrong_associations_and_false_candidates_are_rejected():
 
 
 @pytest.mark.mission
-def test_landing_on_the_candidate_model_at_2_ms_rejects_wrong_associations(tmp_path,
-                                                                             monkeypatch):
+def test_landing_on_the_candidate_model_at_2_ms_keeps_outliers_out(tmp_path, monkeypatch):
     """`alight land --target-speed 2 --seed 0 --estimator mocap` on the default (candidates)
-    camera: every fused measurement is traced back to the candidate the camera made (its truth,
-    the estimator's keypoint mapped through the pattern's symmetry); wrong associations occur and
-    the far ones are rejected; the landing lands."""
+    camera: every fused measurement is traced back to the frame's candidates and the pattern's
+    true keypoints (the estimator's ids mapped through the pattern's symmetry): the gate rejects
+    measurements, none farther than 20 px from its keypoint gets in; the landing lands."""
     from alight.diagrams.cli import main
     from alight.diagrams.running.run_log import RunLog
     from alight.diagrams.scenario import load_scenario
@@ -221,6 +220,7 @@ def test_landing_on_the_candidate_model_at_2_ms_rejects_wrong_associations(tmp_p
 
     def record_candidates(self, X_TC, X_TC_before, rng):
         last["made"] = candidates(self, X_TC, X_TC_before, rng)
+        last["X_CT"] = X_TC.inverse()
         return last["made"]
 
     def record_expose(self, context):
@@ -228,7 +228,8 @@ def test_landing_on_the_candidate_model_at_2_ms_rejects_wrong_associations(tmp_p
         if frame is not None:
             R_WT = self._poses.Eval(context)[self._platform].rotation()
             uv, truth = last["made"]
-            made[frame.stamp] = (self._lens.rectify_points(uv), truth, R_WT)
+            true_uv = self._lens.rectified_project(last["X_CT"].multiply(PATTERN.p_TK.T).T)
+            made[frame.stamp] = (self._lens.rectify_points(uv), truth, true_uv, R_WT)
         return frame
 
     def record_fused(self, st, frame):
@@ -240,15 +241,19 @@ def test_landing_on_the_candidate_model_at_2_ms_rejects_wrong_associations(tmp_p
     monkeypatch.setattr(TargetEstimator, "process", record_fused)
     assert main(["land", "--target-speed", "2", "--seed", "0", "--estimator", "mocap",
                  "--run-dir", str(tmp_path / "run")]) == 0
-    wrong, false = [], 0
+    wrong = false = 0
+    far = []
     for stamp, k, z, ok, q in fused:
-        uv, truth, R_WT = made[stamp]
+        uv, truth, true_uv, R_WT = made[stamp]
+        same = same_keypoints(q, R_WT)[k]
         j = np.argmin(np.linalg.norm(uv - z, axis=1))
-        if truth[j] != same_keypoints(q, R_WT)[k]:
-            wrong.append(ok)
-            false += truth[j] < 0
-    print(f"{len(fused)} fused, {len(wrong)} wrongly associated ({false} false candidates), "
-          f"{len(wrong) - sum(wrong)} of them rejected")
-    assert len(wrong) >= 1 and sum(wrong) < len(wrong)
+        wrong += truth[j] != same
+        false += truth[j] < 0
+        if np.linalg.norm(z - true_uv[same]) > 20.0:
+            far.append(ok)
+    rejected = sum(not ok for *_, ok, _ in fused)
+    print(f"{len(fused)} fused, {rejected} rejected; {wrong} wrongly associated ({false} false "
+          f"candidates); {len(far)} beyond 20 px, {sum(far)} of them accepted")
+    assert rejected >= 1 and not any(far)
     scenario = load_scenario("field", overrides=["target_motion.speed: 2.0"])
     assert_landed(RunLog(tmp_path / "run"), scenario, 2.0)

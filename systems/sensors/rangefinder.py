@@ -1,6 +1,7 @@
 """A downward rangefinder (M Sec. 3.1.2), simulation side: the distance along -b3 from the body
-to the ground plane z = 0, range = z / cos(tilt), plus white noise; no measurement beyond
-`max_range`, above `max_tilt` or in the `outages` windows.
+to the first surface of the scene (scene_ray.py: the ground plane z = 0, over the ground
+range = z / cos(tilt), and the target vehicle's platform and body boxes from `target_model`'s SDF),
+plus white noise; no measurement beyond `max_range`, above `max_tilt` or in the `outages` windows.
 """
 import dataclasses as dc
 
@@ -11,6 +12,9 @@ from alight.systems.estimation.measurements import RANGE
 from alight.systems.params import bounded
 from alight.systems.rotations import rotation_matrix
 from alight.systems.sensors.sampled import SampledSensor, check_windows, in_windows
+from alight.systems.sensors.scene_ray import ray_hit, target_boxes
+
+DOWN_B = np.array([0.0, 0.0, -1.0])
 
 
 @dc.dataclass
@@ -21,6 +25,7 @@ class RangefinderParams:
     max_range: float = bounded(40.0, 0.1, 1000.0, "m")
     max_tilt: float = bounded(45.0, 1.0, 89.0, "deg")
     outages: list[list[float]] = dc.field(default_factory=list)
+    target_model: str = "target_vehicle.sdf"   # the moving target it can hit ("": ground only)
 
     def __post_init__(self):
         check_windows(self.outages, "outages")
@@ -32,13 +37,14 @@ class Rangefinder(SampledSensor):
     def __init__(self, params: RangefinderParams):
         super().__init__(RANGE, params.period, noise_size=1)
         self._p = params
+        self._boxes = target_boxes(params.target_model) if params.target_model else ()
 
     def measure(self, t, truth, noise, memory):
         cos_tilt = rotation_matrix(GROUND_TRUTH.get(truth, "q_WB"))[2, 2]
-        height = GROUND_TRUTH.get(truth, "p_WB")[2]
         valid = cos_tilt > np.cos(np.radians(self._p.max_tilt)) and not in_windows(
             t, self._p.outages)
-        distance = max(height, 0.0) / max(cos_tilt, 1e-3) + self._p.noise_std * noise[0]
+        surface, _ = ray_hit(truth, DOWN_B, self._boxes)
+        distance = min(surface, 2 * self._p.max_range) + self._p.noise_std * noise[0]
         valid = valid and distance <= self._p.max_range
         return RANGE.pack(stamp=t, range=distance, var=max(self._p.noise_std, 1e-3) ** 2,
                           valid=float(valid))

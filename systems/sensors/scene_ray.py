@@ -1,0 +1,66 @@
+"""What a downward range or flow sensor sees (DESIGN.md "Simulation fidelity": range and flow sensors
+measure against the scene's geometry, moving vehicles included): a ray from the body against the
+ground plane z = 0 and the target vehicle's collision boxes (its platform and body, from the
+target's SDF, posed by the ground truth's p_WT, q_WT when `target_present`).
+"""
+import functools
+
+import numpy as np
+from pydrake.geometry import Box, SceneGraph
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+
+from alight.models import model_path
+from alight.systems.boundary import GROUND_TRUTH
+from alight.systems.rotations import rotation_matrix
+
+PLATFORM_BODY = "platform"   # the body whose frame is T (systems/target/vehicle.py)
+
+
+@functools.lru_cache(maxsize=8)
+def target_boxes(model: str) -> tuple:
+    """The collision boxes of the target's platform body in T: ((R_TG (3, 3), p_TG (3,), half
+    size (3,)), ...), read from the target's SDF (`model`, a file in models/ or a path)."""
+    plant = MultibodyPlant(0.0)
+    scene_graph = SceneGraph()
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    Parser(plant).AddModels(str(model_path(model)))
+    plant.Finalize()
+    inspector = scene_graph.model_inspector()
+    boxes = []
+    for g in plant.GetCollisionGeometriesForBody(plant.GetBodyByName(PLATFORM_BODY)):
+        shape = inspector.GetShape(g)
+        if isinstance(shape, Box):
+            X_TG = inspector.GetPoseInFrame(g)
+            boxes.append((X_TG.rotation().matrix(), X_TG.translation(),
+                          np.asarray(shape.size()) / 2))
+    return tuple(boxes)
+
+
+def ray_hit(truth: np.ndarray, d_B: np.ndarray, boxes: tuple) -> tuple[float, bool]:
+    """Distance [m] from the body's origin along `d_B` (a unit direction in B) to the first
+    surface, and whether that surface is the target's (inf: nothing hit)."""
+    R_WB = rotation_matrix(GROUND_TRUTH.get(truth, "q_WB"))
+    p_WB = GROUND_TRUTH.get(truth, "p_WB")
+    d_W = R_WB @ d_B
+    ground = max(p_WB[2], 0.0) / -d_W[2] if d_W[2] < -1e-9 else np.inf
+    if not boxes or GROUND_TRUTH.get(truth, "target_present") < 0.5:
+        return float(ground), False
+    R_WT = rotation_matrix(GROUND_TRUTH.get(truth, "q_WT"))
+    p_WT = GROUND_TRUTH.get(truth, "p_WT")
+    target = min(_box_entry((R_WT @ R_TG).T @ (p_WB - p_WT - R_WT @ p_TG), (R_WT @ R_TG).T @ d_W,
+                            half) for R_TG, p_TG, half in boxes)
+    return (float(target), True) if target < ground else (float(ground), False)
+
+
+def _box_entry(p: np.ndarray, d: np.ndarray, half: np.ndarray) -> float:
+    """Slab test: the ray p + s d (s >= 0) against the box |x| <= half (its own frame)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (-half - p) / d, (half - p) / d
+    parallel = np.abs(d) < 1e-12
+    if np.any(parallel & (np.abs(p) > half)):
+        return np.inf
+    near = np.where(parallel, -np.inf, np.minimum(a, b)).max()
+    far = np.where(parallel, np.inf, np.maximum(a, b)).min()
+    return float(max(near, 0.0)) if far >= max(near, 0.0) else np.inf
