@@ -113,8 +113,9 @@ class LagReporter:
     """Counts the ticks that end late and, every `period` s of wall time in which some did, logs
     one warning with the achieved real-time rate over that period and the lag."""
 
-    def __init__(self, rate: float, period: float, tolerance: float):
+    def __init__(self, rate: float, period: float, tolerance: float, note: str = ""):
         self._rate, self._period, self._tolerance = rate, period, tolerance
+        self._note = note  # appended to each warning (why it may be late)
         self._window_start: tuple[float, float] | None = None  # (wall, sim) at its start
         self._late = 0
         self.warnings = 0
@@ -130,9 +131,9 @@ class LagReporter:
             if self._late:
                 self.warnings += 1
                 LOG.warning("not keeping real time: %.2f x real time over the last %.1f s "
-                            "(target %.2f), %d late ticks, %.0f ms behind at t = %.1f s",
+                            "(target %.2f), %d late ticks, %.0f ms behind at t = %.1f s%s",
                             (t - start_t) / (wall - start_wall), wall - start_wall, self._rate,
-                            self._late, 1e3 * lag, t)
+                            self._late, 1e3 * lag, t, self._note)
             self._window_start, self._late = (wall, t), 0
         return late
 
@@ -183,7 +184,8 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     ticks = overruns = 0
     max_lag = paced_wait = 0.0
     pacer = Pacer(pace, pace_stall) if pace is not None else None
-    lag_reporter = LagReporter(clock.rate, warn_period, overrun_tolerance)
+    lag_reporter = LagReporter(clock.rate, warn_period, overrun_tolerance,
+                               " (paced by the autopilot's clock)" if pace is not None else "")
     interrupted = False
     error = None
     clock.restart()
