@@ -28,7 +28,7 @@ class PositionHoldParams:
     z_vel_i_acc: float = bounded(2.0, 0.0, 20.0, "1/s^2")  # MPC_Z_VEL_I_ACC
     xy_vel_max: float = bounded(2.0, 0.1, 20.0, "m/s")    # hold speed limit (MPC_VEL_MANUAL-like)
     z_vel_max: float = bounded(1.0, 0.1, 5.0, "m/s")      # MPC_Z_VEL_MAX_DN
-    tiltmax_air: float = bounded(35.0, 1.0, 89.0, "deg")  # MPC_TILTMAX_AIR
+    tiltmax_air: float = bounded(45.0, 1.0, 89.0, "deg")  # MPC_TILTMAX_AIR
 
 
 class PositionHold:
