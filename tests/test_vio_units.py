@@ -133,3 +133,50 @@ def test_a_restart_whose_smoother_update_fails_is_bridged_then_retried(monkeypat
     assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.TRACKING
     assert VIO_ODOMETRY.get(odometry, "restarts") >= 3
     np.testing.assert_allclose(STATE_ESTIMATE.get(estimate, "p_EB"), [0, 0, 0.22], atol=0.02)
+
+
+def test_keyframes_add_at_most_max_landmarks_known_first_and_the_window_forgets_as_gtsam():
+    """The back end's bound (issue 19): a keyframe adds at most `max_landmarks` observations, of
+    landmarks in the window first; the window's landmark bookkeeping (what `knows` answers) is
+    exactly the smoother's variables after it marginalized what fell out of the lag."""
+    import dataclasses as dc
+
+    import gtsam
+    from gtsam.symbol_shorthand import L
+
+    from alight.systems.vio.backend import BackendParams, Observation, SlidingWindow
+    camera = RgbdCameraParams()
+    K = camera.lens().K
+    params = dc.replace(BackendParams(), lag=0.5, max_landmarks=30)
+    window = SlidingWindow(params, camera.calibration())
+    rng = np.random.default_rng(1)
+    p_C = np.column_stack([rng.uniform(-1.5, 1.5, (400, 2)), rng.uniform(2, 6, 400)])
+
+    def observations(k):   # tracks 8k .. 8k+49 in view: 8 leave and 8 arrive per keyframe
+        ids = np.arange(8 * k, 8 * k + 50)
+        uv = p_C[ids, :2] / p_C[ids, 2:] @ K[:2, :2].T + K[:2, 2]
+        u_virtual, back = virtual_stereo(uv, p_C[ids, 2], K, camera.baseline)
+        return [Observation(int(i), uv_i, float(u), b)
+                for i, uv_i, u, b in zip(ids, uv, u_virtual, back)]
+
+    nav = gtsam.NavState(gtsam.Rot3(), np.zeros(3), np.zeros(3))
+    bias = gtsam.imuBias.ConstantBias()
+    window.start(0.0, nav, bias, observations(0))
+    for k in range(1, 30):
+        obs = observations(k)
+        known_before = [o.track for o in obs if window.knows(o.track)]
+        added = window.selected(obs)
+        assert len(added) == params.max_landmarks
+        assert [o.track for o in added[:len(known_before)]] == known_before[:30]
+        pim = gtsam.PreintegratedCombinedMeasurements(window.imu_params, bias)
+        for _ in range(20):
+            pim.integrateMeasurement(np.array([0.0, 0.0, params.gravity]), np.zeros(3), 0.005)
+        window.add_keyframe(0.1 * k, pim, obs)
+        in_smoother = {gtsam.Symbol(key).index()
+                       for key in window._smoother.calculateEstimate().keys()
+                       if gtsam.Symbol(key).chr() == ord("l")}
+        assert {o.track for o in obs if window.knows(o.track)} <= in_smoother
+        assert window.landmark_count() == len(in_smoother)
+        assert all(window.knows(track) for track in in_smoother)
+    assert 0 < window.landmark_count() < 8 * 30  # old landmarks were marginalized
+    np.testing.assert_allclose(window.state.nav.position(), 0.0, atol=0.05)

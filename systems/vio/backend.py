@@ -35,6 +35,8 @@ class BackendParams:
     initial_accel_bias_std: float = bounded(0.1, 1e-5, 10.0, "m/s^2")
     initial_gyro_bias_std: float = bounded(0.005, 1e-6, 1.0, "rad/s")
     max_speed: float = bounded(40.0, 1.0, 1000.0, "m/s")          # beyond: the solution diverged
+    # landmarks one keyframe observes in the window, at most (the bound on the back end's work)
+    max_landmarks: int = bounded(80, 4, 10000)
 
 
 @dc.dataclass
@@ -91,7 +93,7 @@ class SlidingWindow:
             np.array([sigma, np.hypot(sigma, self._disparity_std), sigma])))
         self._smoother = None
         self._k = -1
-        self._landmarks = set()
+        self._landmarks: dict[int, float] = {}  # in the window: track -> last observed [s]
         self.state: KeyframeState | None = None
 
     @property
@@ -111,7 +113,7 @@ class SlidingWindow:
         defaults: the initialization from rest; larger ones when restarting after a loss)."""
         p = self._p
         self._smoother = gtsam.IncrementalFixedLagSmoother(p.lag, gtsam.ISAM2Params())
-        self._landmarks = set()
+        self._landmarks = {}
         self._k += 1
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         att = np.radians(p.initial_attitude_std) if attitude_std is None else attitude_std
@@ -144,17 +146,26 @@ class SlidingWindow:
         values.insert(B(k), previous.bias)
         return self._update(t, graph, values, predicted.pose(), observations)
 
+    def selected(self, observations: list[Observation]) -> list[Observation]:
+        """The observations a keyframe adds: of landmarks in the window, then of new ones with
+        depth (a landmark is created from its first observation with depth), `max_landmarks`
+        in all. The window's landmarks come first: they tie the keyframe to the previous ones;
+        a new track left out now is offered again at the next keyframe."""
+        known = [o for o in observations if o.track in self._landmarks]
+        new = [o for o in observations
+               if o.track not in self._landmarks and np.isfinite(o.u_virtual)]
+        return (known + new)[:self._p.max_landmarks]
+
     def _update(self, t, graph, values, X_WB: gtsam.Pose3, observations) -> KeyframeState:
         k = self._k
         timestamps = gtsam.FixedLagSmootherKeyTimestampMap()
         for key in (X(k), V(k), B(k)):
             timestamps.insert((key, t))
         X_WC = X_WB.compose(self._X_BC)
-        for obs in observations:
+        landmarks = dict(self._landmarks)
+        for obs in self.selected(observations):
             depth = np.isfinite(obs.u_virtual)
             if obs.track not in self._landmarks:
-                if not depth:
-                    continue  # a landmark is created from its first observation with depth
                 values.insert(L(obs.track), X_WC.transformFrom(obs.p_C))
             if depth:
                 graph.add(gtsam.GenericStereoFactor3D(
@@ -164,11 +175,13 @@ class SlidingWindow:
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(
                     obs.uv, self._mono_noise, X(k), L(obs.track), self._K, self._X_BC))
             timestamps.insert((L(obs.track), t))
+            landmarks[obs.track] = t
         try:
             self._smoother.update(graph, values, timestamps)
-            estimate = self._smoother.calculateEstimate()
-            pose, velocity = estimate.atPose3(X(k)), estimate.atVector(V(k))
-            bias = estimate.atConstantBias(B(k))
+            smoother = self._smoother
+            pose = smoother.calculateEstimatePose3(X(k))
+            velocity = smoother.calculateEstimateVector(V(k))
+            bias = smoother.calculateEstimateConstantBias(B(k))
             cov_pose = self._smoother.marginalCovariance(X(k))
             cov_velocity = self._smoother.marginalCovariance(V(k))
         except RuntimeError as e:
@@ -176,8 +189,9 @@ class SlidingWindow:
         if not (np.all(np.isfinite(pose.matrix())) and np.all(np.isfinite(velocity))
                 and np.linalg.norm(velocity) < self._p.max_speed):
             raise DivergedError(f"implausible keyframe state: v = {velocity}")
-        self._landmarks = {gtsam.Symbol(key).index() for key in estimate.keys()
-                           if gtsam.Symbol(key).chr() == ord("l")}
+        # The smoother marginalized every variable last stamped before (newest stamp - lag).
+        cutoff = t - self._p.lag
+        self._landmarks = {track: seen for track, seen in landmarks.items() if seen >= cutoff}
         self.state = KeyframeState(t, gtsam.NavState(pose, velocity), bias, cov_pose,
                                    cov_velocity)
         return self.state

@@ -136,7 +136,9 @@ class VioEstimator:
         observations = self._observations(keypoints)
         usable = [o for o in observations if window.knows(o.track) or np.isfinite(o.u_virtual)]
         known = sum(window.knows(o.track) for o in usable)
-        if not is_keyframe(self.p.frontend, frame.stamp, window.state.t, known, len(usable)):
+        # the overlap counts against what a keyframe can hold (the back end's max_landmarks)
+        if not is_keyframe(self.p.frontend, frame.stamp, window.state.t, known,
+                           min(len(usable), self.p.backend.max_landmarks)):
             return
         if len(usable) < self.p.min_features:
             self._update_status(frame.stamp)
