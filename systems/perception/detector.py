@@ -440,7 +440,7 @@ def refine_corners(grey: np.ndarray, corners: np.ndarray, reach: float = 2.5) ->
     """Sub-pixel corners: along each side, the strongest intensity step across the side (within
     `reach` px of the contour, parabolic peak of the gradient) at evenly spaced points, a
     least-squares line through them, and the intersections of adjacent lines. Only the quad's
-    neighbourhood is converted to float (the whole frame per quad was most of the detection time)."""
+    neighbourhood is converted to float (not the whole frame per quad)."""
     h, w = grey.shape
     x0, y0 = np.maximum(np.floor(corners.min(axis=0) - reach - 2).astype(int), 0)
     x1, y1 = np.minimum(np.ceil(corners.max(axis=0) + reach + 3).astype(int), [w, h])
