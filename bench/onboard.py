@@ -36,7 +36,7 @@ both (`onboard.estimator: vio`).
 
     python bench/onboard.py [--sensing rendered|geometric] [--duration 30] [--scenario field]
                             [--target-speed V] [--seed S] [--set 'KEY: VALUE' ...]
-                            [--clock cpu|wall] [--rerecord]
+                            [--clock cpu|wall] [--rerecord] [--recording DIR]
 """
 import argparse
 import hashlib
@@ -55,7 +55,7 @@ from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 from alight.diagrams.cli.options import add_scenario_options, args_scenario
 from alight.diagrams.running.runner import build
 from alight.diagrams.running.simulation import simulate
-from alight.diagrams.scenario import dump_scenario
+from alight.diagrams.scenario import dump_scenario, load_scenario
 from alight.diagrams.stacks import add_onboard
 from alight.systems import timing
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH,
@@ -308,12 +308,21 @@ def main() -> None:
     parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
                         help="what the components' timers measure (default this thread's CPU)")
     parser.add_argument("--rerecord", action="store_true", help="record even if cached")
+    parser.add_argument("--recording", type=Path, metavar="DIR",
+                        help="replay this recording folder with the scenario it was recorded "
+                             "with (its scenario.yaml), whatever the other options say: the "
+                             "same streams before and after a change of the stack or models/")
     args = parser.parse_args()
     if args.duration <= 0:
         parser.error("--duration must be positive")
-    scenario = args_scenario(args, ["onboard.estimator: vio", *SENSING[args.sensing]])
-    folder = cache_folder(scenario, args.duration)
-    if args.rerecord or not (folder / "complete").exists():
+    if args.recording is not None:
+        if not (args.recording / "complete").exists():
+            parser.error(f"--recording {args.recording}: not a complete recording folder")
+        folder, scenario = args.recording, load_scenario(args.recording / "scenario.yaml")
+    else:
+        scenario = args_scenario(args, ["onboard.estimator: vio", *SENSING[args.sensing]])
+        folder = cache_folder(scenario, args.duration)
+    if args.recording is None and (args.rerecord or not (folder / "complete").exists()):
         shutil.rmtree(folder, ignore_errors=True)
         print(f"recording {args.duration:g} s of {scenario.name} ({args.sensing}) into {folder}",
               flush=True)
@@ -325,8 +334,9 @@ def main() -> None:
         timing.time = types.SimpleNamespace(perf_counter=time.thread_time)
     timers, cpu, reader, stack, _ = replay(scenario, recording)
     flight = recording.duration
-    print(f"replayed {flight:.1f} s of flight ({args.sensing} sensing, VIO odometry, open loop) "
-          f"from {folder}; load average {os.getloadavg()[0]:.2f}")
+    sensing = (scenario.vehicle.down_camera.source, scenario.onboard.vio_camera.source)
+    print(f"replayed {flight:.1f} s of flight (down camera {sensing[0]}, RGB-D {sensing[1]}, "
+          f"VIO odometry, open loop) from {folder}; load average {os.getloadavg()[0]:.2f}")
     total = print_report(component_rows(timers, flight), flight, cpu, reader, args.clock)
     print(accuracy(stack, recording))
     print(f"onboard total: {total:.3f} CPU s per s of flight")
