@@ -24,11 +24,13 @@ class LandingTargetSender(LeafSystem):
         self._link = link
         self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
-        self._last = self.DeclareDiscreteState(np.array([-np.inf]))  # last stamp sent
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        # A publish event (output to the world): it sees the estimate after this instant's
+        # updates, as the run loggers do.
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self._last_stamp = -np.inf  # what was sent: not simulation state
         self.sent = 0
 
-    def _update(self, context, discrete_state):
+    def _publish(self, context):
         target = self._target.Eval(context)
         estimate = self._estimate.Eval(context)
         stamp = TARGET_ESTIMATE.get(target, "stamp")
@@ -36,9 +38,9 @@ class LandingTargetSender(LeafSystem):
         if not (TARGET_ESTIMATE.get(target, "valid") > 0.5 and np.all(np.isfinite(target))
                 and STATE_ESTIMATE.get(estimate, "valid") > 0.5
                 and np.all(np.isfinite(estimate)) and math.isfinite(t_fc)
-                and stamp > context.get_discrete_state(self._last).get_value()[0]):
+                and stamp > self._last_stamp):
             return
         self._link.send(landing_target_message(self._link.mav, target, estimate,
                                                int(round(max(t_fc, 0.0) * 1e6))))
         self.sent += 1
-        discrete_state.set_value(self._last, [stamp])
+        self._last_stamp = stamp

@@ -518,20 +518,21 @@ def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     received = received[received["count"] > 0].drop_duplicates("count")
     t = received["sent"].to_numpy()  # the message's time (the estimate's, autopilot clock)
     p_WT = received[["p_WT_0", "p_WT_1", "p_WT_2"]].to_numpy()
-    # The EKF's estimate at that stamp (onboard clock: autopilot time - offset), interpolated
-    # in its log (the mission's 20 Hz; the EKF predicts linearly between frames)
+    # The EKF's estimate at that stamp (onboard clock: autopilot time - offset): the messages
+    # whose stamp the log (the mission's 20 Hz, in phase with the sender) holds carry it
     offset = onboard.metadata["autopilot_clock_offset"]
     target = onboard["target_estimate"]
     target = target[target["valid"] > 0.5]
     stamps = target["stamp"].to_numpy() + offset
-    inside = (t >= stamps[0]) & (t <= stamps[-1])
-    assert inside.sum() > 20 * 3  # seconds of tracking at 20 Hz
-    logged = np.column_stack([np.interp(t[inside], stamps, target[f"p_WT_{i}"])
-                              for i in range(3)])
-    gap = np.linalg.norm(p_WT[inside] - logged, axis=1)
-    print(f"LANDING_TARGET: {len(t)} received over {np.ptp(t):.1f} s; against the EKF's log "
-          f"p50 {np.median(gap):.3f} p99 {np.percentile(gap, 99):.3f} m")
-    assert np.percentile(gap, 99) < 0.05  # 2 m/s x the log's 25 ms half period
+    rows = np.clip(np.searchsorted(stamps, t), 1, len(target) - 1)
+    rows = np.where(np.abs(stamps[rows - 1] - t) < np.abs(stamps[rows] - t), rows - 1, rows)
+    logged = np.abs(stamps[rows] - t) < 1e-4
+    gap = np.linalg.norm(p_WT[logged] - target[["p_WT_0", "p_WT_1", "p_WT_2"]].to_numpy()
+                         [rows[logged]], axis=1)
+    print(f"LANDING_TARGET: {len(t)} received over {np.ptp(t):.1f} s, {logged.sum()} at a "
+          f"logged stamp: max difference {gap.max():.2e} m")
+    assert logged.sum() > 0.5 * len(t) > 20 * 3 * 0.5  # seconds of tracking at 20 Hz
+    assert gap.max() < 1e-4  # float32 on the wire
     assert len(t) / np.ptp(t) > 15.0
     # Against the truth (printed, not asserted: on a loaded machine the onboard side lags the
     # autopilot and its EKF sees frames late; the message carries the EKF, checked above)
