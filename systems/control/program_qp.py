@@ -43,10 +43,11 @@ class ProgramQp:
             rows = np.arange(n)[index]
             self.P[np.ix_(rows, rows)] += binding.evaluator().Q()
         rows, box_variable = [], []
-        for binding in self._constraints:
+        num_general = len(self._constraints) - len(prog.bounding_box_constraints())
+        for k, binding in enumerate(self._constraints):
             index = self._index(binding)
             evaluator = binding.evaluator()
-            is_box = not hasattr(evaluator, "GetDenseA")
+            is_box = k >= num_general  # (a BoundingBoxConstraint is a LinearConstraint too)
             variables = np.arange(n)[index]
             dense = np.eye(len(variables)) if is_box else evaluator.GetDenseA()
             block = np.zeros((evaluator.num_constraints(), n))
