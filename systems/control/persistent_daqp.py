@@ -60,8 +60,14 @@ class PersistentDaqp:
             row_slack[rows] = slack
         self._soft = np.flatnonzero(row_slack >= 0)         # general rows that become soft
         self._soft_slack = row_slack[self._soft]
-        pairs = [rows for rows in slack_rows.values() if len(rows) == 2]
-        self._pairs = np.array(pairs, int).reshape(-1, 2)
+        # per eliminated slack: its variable and its (first, last) row among the soft rows
+        position = {row: k for k, row in enumerate(self._soft)}
+        self._slack_variables = np.array(list(slack_rows), int)
+        self._slack_first = np.array([position[rows[0]] for rows in slack_rows.values()], int)
+        self._slack_last = np.array([position[rows[-1]] for rows in slack_rows.values()], int)
+        paired = self._slack_first != self._slack_last
+        self._pair_rows = (self._soft[self._slack_first[paired]],
+                           self._soft[self._slack_last[paired]])
         self._G_soft = G[np.ix_(self._soft, self._keep)]
         H = self.qp.P[np.ix_(self._keep, self._keep)].copy()
         H[flat[self._keep], flat[self._keep]] = regularization
@@ -138,7 +144,7 @@ class PersistentDaqp:
         lower, upper = self._all_bounds()
         n = self.qp.num_vars
         row_upper = upper[n:]
-        if len(self._pairs) and np.any(row_upper[self._pairs].sum(axis=1) < 0.0):
+        if np.any(row_upper[self._pair_rows[0]] + row_upper[self._pair_rows[1]] < 0.0):
             return QpResult(False, np.full(n, np.nan), PAIR_VIOLATED, 0)
         q = self.qp.q()
         self._set_soft_weights(q)
@@ -148,7 +154,8 @@ class PersistentDaqp:
         x = np.zeros(n)
         x[self._keep] = kept
         if len(self._soft):  # s = max(0, g'x - b) over the slack's rows
-            violation = self._G_soft @ x[self._keep] - row_upper[self._soft]
-            np.maximum.at(x, self._soft_slack, violation)
+            violation = self._G_soft @ kept - row_upper[self._soft]
+            x[self._slack_variables] = np.maximum(
+                np.maximum(violation[self._slack_first], violation[self._slack_last]), 0.0)
         ok = flag in (OPTIMAL, SOFT_OPTIMAL) and bool(np.all(np.isfinite(x)))
         return QpResult(ok, x, int(flag), int(info["iterations"]))
