@@ -2,27 +2,42 @@
 the simulated PX4's EKF2 emulation fusing external vision, its Hold / offboard-loss rules, and
 the MAVLink vehicle sending the onboard estimate."""
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
+from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
+from mavsdk.plugins.action import Action
+from mavsdk.plugins.offboard import Attitude, Offboard
+from mavsdk.plugins.telemetry import FlightMode as MavsdkMode, Telemetry
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import VectorLogSink
+from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from alight.diagrams.running.run_log import read_run
 from alight.hw import px4
 from alight.hw.autopilot_rules import (ACCEPTED, TEMPORARILY_REJECTED, AutopilotRules,
                                        FlightMode, Px4RulesParams)
 from alight.hw.external_vision import (decode_landing_target, decode_odometry,
                                        landing_target_message, odometry_message, quality)
+from alight.hw.frame_channel import EstimateSample, FrameSubscriber, default_frame_address
 from alight.hw.frames import ned_yaw_to_heading
+from alight.hw.link import LinkParams, MavlinkLink
+from alight.hw.mavlink_vehicle import MavlinkVehicleParams, make_mavlink_vehicle
+from alight.hw.realtime import WallClock, run_realtime
 from alight.systems.autopilot.ev_fusion import (LOCAL_POSITION, ExternalVisionFusion,
                                                 ExternalVisionParams)
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_ESTIMATE,
                                      TARGET_ESTIMATE, ActiveMode, ImuSamples)
 from alight.systems.rotations import heading_quaternion
 from alight.systems.thrust_curve import GRAVITY
+from mavlink_fake import FakeAutopilot, SimAutopilotProcess
+from test_mavlink_hil import fly_hil
+from test_mavlink_mavsdk import wait_for
 
 MAV = mavlink.MAVLink(None)
 
@@ -293,7 +308,6 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
     """`alight hil --mission fly` sends its mocap estimate as ODOMETRY; the simulated PX4's
     fused local position (what LOCAL_POSITION_NED carries) follows the true position within
     the odometry's noise (mocap: 1 mm) plus the filter's lag."""
-    from test_mavlink_hil import fly_hil
     status, text, sim, onboard = fly_hil(tmp_path, (
         "--mission", "fly", "--waypoints", "0,0,1.5; 1,0,1.5"), duration=40.0)
     assert status == 0, text
@@ -333,8 +347,6 @@ class VisionCompanion:
     handles every client's messages; it answers its one peer, MAVSDK here)."""
 
     def __init__(self, port: int, frames):
-        from pymavlink import mavutil
-        import threading
         self._connection = mavutil.mavlink_connection(
             f"udpout:127.0.0.1:{port}", source_system=1, source_component=197, dialect="common")
         self._connection.mav = mavlink.MAVLink(self._connection, 1, 197)
@@ -349,8 +361,6 @@ class VisionCompanion:
             1, 1, command, 0, *params, *[0.0] * (7 - len(params))))
 
     def _loop(self):
-        import time
-        from alight.hw.frame_channel import EstimateSample
         mav, last, next_setpoint = self._connection.mav, -1.0, 0.0
         while self._running:
             sample = self._frames.latest("mocap")
@@ -377,16 +387,6 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
     world's mocap as ODOMETRY: `position_velocity_ned` follows the truth; offboard.stop() (Hold)
     holds the position; an offboard loss with a valid estimate holds (COM_OBL_RC_ACT 0:
     Position), without one (vision stopped, EKF2_NOAID_TOUT 1 s here) lands."""
-    import time
-    from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
-    from mavsdk.plugins.action import Action
-    from mavsdk.plugins.offboard import Attitude, Offboard
-    from mavsdk.plugins.telemetry import FlightMode, Telemetry
-    from alight.diagrams.running.run_log import read_run
-    from alight.hw.frame_channel import FrameSubscriber, default_frame_address
-    from mavlink_fake import SimAutopilotProcess
-    from test_mavlink_mavsdk import wait_for
-
     server = SimAutopilotProcess(tmp_path / "sim-autopilot", frames=True, duration=90.0, args=(
         "--set", "vehicle.flight_controller.external_vision.noaid_tout: 1.0"))
     frames = FrameSubscriber(default_frame_address(str(server.port)))
@@ -417,7 +417,7 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
             for _ in range(10):
                 companion.command(mavlink.MAV_CMD_DO_SET_MODE, 1, px4.MainMode.OFFBOARD)
                 try:
-                    return wait_for(lambda: mode_is(FlightMode.OFFBOARD), 0.5, "OFFBOARD")
+                    return wait_for(lambda: mode_is(MavsdkMode.OFFBOARD), 0.5, "OFFBOARD")
                 except AssertionError:
                     pass
             raise AssertionError("OFFBOARD refused: " + "".join(server.output[-5:]))
@@ -430,7 +430,7 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
         offboard.start()
         sleep_sim(0.3)
         action.arm()
-        wait_for(lambda: telemetry.armed() and mode_is(FlightMode.OFFBOARD), 10.0,
+        wait_for(lambda: telemetry.armed() and mode_is(MavsdkMode.OFFBOARD), 10.0,
                  "armed in OFFBOARD")
         offboard.set_attitude(Attitude(0.0, 0.0, 0.0, 0.8))
         wait_for(telemetry.in_air, 10.0, "in the air")
@@ -438,7 +438,7 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
         offboard.set_attitude(Attitude(0.0, 0.0, 0.0, 0.64))
         sleep_sim(0.3)
         offboard.stop()  # MAVSDK asks for Hold
-        wait_for(lambda: mode_is(FlightMode.HOLD), 5.0, "Hold")
+        wait_for(lambda: mode_is(MavsdkMode.HOLD), 5.0, "Hold")
         t_hold = sim_time()
         sleep_sim(4.0)
         # Offboard again from the companion, whose setpoints then stop: offboard loss
@@ -447,7 +447,7 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
         companion_offboard()
         sleep_sim(0.5)
         companion.setpoints = False
-        wait_for(lambda: mode_is(FlightMode.POSCTL), 5.0, "Position after the loss")
+        wait_for(lambda: mode_is(MavsdkMode.POSCTL), 5.0, "Position after the loss")
         t_loss = sim_time()
         sleep_sim(4.0)
         # Once more without a position: the vision stops first, then the setpoints
@@ -458,7 +458,7 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
         sleep_sim(1.5)
         t_blind = sim_time()
         companion.setpoints = False
-        wait_for(lambda: mode_is(FlightMode.LAND), 5.0, "Land after the loss without position")
+        wait_for(lambda: mode_is(MavsdkMode.LAND), 5.0, "Land after the loss without position")
         wait_for(lambda: not telemetry.armed(), 30.0, "landed and disarmed")
     finally:
         print("modes", [(round(s, 2), m) for s, m in seen["mode"]])
@@ -509,7 +509,6 @@ def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     simulated autopilot (a pymavlink receiver) logs each one PX4 would use (LOCAL_NED,
     position_valid): at 20 Hz while the EKF tracks, each the EKF's estimate at its stamp, and
     (printed) how the target relative to the vehicle compares with the truth."""
-    from test_mavlink_hil import fly_hil
     scenario = ("--scenario", "scenario_field_hil.yaml", "--target-speed", "2")
     status, text, sim, onboard = fly_hil(tmp_path, ("--mission", "land", *scenario),
                                          (*scenario, "--seed", "0"), duration=60.0)
@@ -566,10 +565,6 @@ class EstimateScript(LeafSystem):
 
 
 def test_the_mavlink_vehicle_sends_its_odometry_input_as_external_vision():
-    from alight.hw.link import LinkParams, MavlinkLink
-    from alight.hw.mavlink_vehicle import MavlinkVehicleParams, make_mavlink_vehicle
-    from alight.hw.realtime import WallClock, run_realtime
-    from mavlink_fake import FakeAutopilot
     fake = FakeAutopilot()
     link = MavlinkLink.open(fake.url, LinkParams(command_timeout=0.1), WallClock())
     try:
