@@ -310,31 +310,29 @@ class MavlinkOdometrySender(LeafSystem):
         self._link, self._params = link, params
         self._source = estimator_type(params.odometry_estimator)
         self._odometry = self.DeclareVectorInputPort("odometry", STATE_ESTIMATE.size)
-        # last stamp sent, last frame_counter seen, reset_counter
-        self._xd = self.DeclareDiscreteState(np.array([-np.inf, np.nan, 0.0]))
-        if params.odometry_rate > 0:
-            self.DeclarePeriodicDiscreteUpdateEvent(1.0 / params.odometry_rate, 0.0,
-                                                    self._update)
+        if params.odometry_rate > 0:  # a publish event (output to the world), after updates
+            self.DeclarePeriodicPublishEvent(1.0 / params.odometry_rate, 0.0, self._publish)
+        # What was sent (not simulation state): last stamp, last frame_counter, reset_counter
+        self._last_stamp, self._last_frame, self._resets = -math.inf, math.nan, 0
         self.sent = 0
 
-    def _update(self, context, discrete_state):
+    def _publish(self, context):
         if not self._odometry.HasValue(context):
             return
         estimate = self._odometry.Eval(context)
-        last_stamp, last_frame, resets = context.get_discrete_state(self._xd).get_value()
         stamp = STATE_ESTIMATE.get(estimate, "stamp")
         valid = STATE_ESTIMATE.get(estimate, "valid") > 0.5 and np.all(np.isfinite(estimate))
         t_fc = autopilot_time(self._link, stamp)
-        if not (valid and stamp > last_stamp and math.isfinite(t_fc)):
+        if not (valid and stamp > self._last_stamp and math.isfinite(t_fc)):
             return
         frame = STATE_ESTIMATE.get(estimate, "frame_counter")
-        if math.isfinite(last_frame) and frame != last_frame:
-            resets += 1
+        if math.isfinite(self._last_frame) and frame != self._last_frame:
+            self._resets += 1
         self._link.send(odometry_message(
-            self._link.mav, estimate, int(round(max(t_fc, 0.0) * 1e6)), int(resets),
+            self._link.mav, estimate, int(round(max(t_fc, 0.0) * 1e6)), self._resets,
             self._source, quality(estimate, self._params.odometry_worst_std)))
         self.sent += 1
-        discrete_state.set_value(self._xd, np.array([stamp, frame, resets]))
+        self._last_stamp, self._last_frame = stamp, frame
 
 
 class ChannelCamera(LeafSystem):
