@@ -12,12 +12,20 @@ ground station's parameter and mission requests (hw/ground_station.py). Camera
 frames and the simulated world's mocap estimate (the `mocap` sensor model of DESIGN.md: true pose
 plus noise and latency) go to the onboard side over the local frame channel (hw/frame_channel.py).
 External vision (ODOMETRY, as PX4's receiver filters it, hw/external_vision.py) goes to the
-simulated flight controller's `odometry` input, whose EKF2 emulation (systems/autopilot/ev_fusion.py)
-makes the local position sent as LOCAL_POSITION_NED and ODOMETRY (PX4's own, MAV_FRAME_LOCAL_NED)
-and held by Hold, Position and the offboard-loss failsafe; LANDING_TARGET messages PX4 would use
+simulated flight controller's `odometry` input, whose EKF2 emulation
+(systems/autopilot/ev_fusion.py) makes the local position sent as LOCAL_POSITION_NED and
+ODOMETRY (PX4's own, MAV_FRAME_LOCAL_NED) and held by Hold, Position and the offboard-loss
+failsafe; LANDING_TARGET messages PX4 would use
 are logged in the run folder (`landing_target`), with the local position (`local_position`).
 The world is the vehicle config's: with a landing scenario's (diagrams/scenario.py
 `vehicle_config`), the moving target, the down camera and the wind.
+
+Like PX4 SITL, it can run two MAVLink instances (`--listen`, the offboard/companion link, PX4's
+udp 14540; `--gcs`, the ground-station link, PX4's udp 14550): each link is its own endpoint with
+its own peer, MAVLink version (hw/endpoint.py) and stream rates (SET_MESSAGE_INTERVAL and
+REQUEST_MESSAGE act on the link they came on, as on PX4's per-instance streams); both get the
+telemetry, HEARTBEAT and STATUSTEXT; a command, parameter or mission request is answered on the
+link it came from; both links' commands and setpoints go to the same flight controller.
 """
 import collections
 import dataclasses as dc
@@ -39,7 +47,8 @@ from alight.diagrams.onboard.mocap import add_mocap
 from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import add_run_logging, open_run_folder, write_run_folder
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.diagrams.world.visualization import start_recording, write_recording
+from alight.diagrams.world.visualization import (add_vehicle_flight_view, start_recording,
+                                                 write_recording)
 from alight.hw.autopilot_rules import (ACCEPTED, UNSUPPORTED, Answer, AutopilotRules,
                                       Px4RulesParams)
 from alight.hw.connection import open_connection
@@ -210,20 +219,73 @@ class AutopilotEndpoint(MavlinkEndpoint):
             self.counters.rejected += 1
 
 
+class AutopilotLink:
+    """One MAVLink instance of the autopilot: its endpoint and its own telemetry streams (rates,
+    next send times, one-shot requests), as each of PX4's MAVLink instances has."""
+
+    def __init__(self, endpoint: AutopilotEndpoint, default_rates: dict[str, float]):
+        self.endpoint = endpoint
+        self._default_rates = default_rates
+        self.intervals = {name: _interval(rate) for name, rate in default_rates.items()}
+        self.next_send = {name: 0.0 for name in STREAMS}
+        self.one_shots: set[str] = set()
+        self.last_imu_sent = {"HIGHRES_IMU": -math.inf, "SCALED_IMU": -math.inf}
+
+    def due(self, name: str, now: float) -> bool:
+        """A stream message is due on this link (or was requested once)."""
+        interval = self.intervals[name]
+        if name in self.one_shots:
+            return True
+        if interval is None or now < self.next_send[name]:
+            return False
+        self.next_send[name] = max(self.next_send[name] + interval, now)
+        return True
+
+    def imu_due(self, name: str, t: float) -> bool:
+        """The IMU sample at `t` goes out as `name` on this link (each sample at most once)."""
+        interval = self.intervals[name]
+        if interval is None or t - self.last_imu_sent[name] < interval - 1e-4:
+            return False
+        self.last_imu_sent[name] = t
+        return True
+
+    def set_interval(self, params) -> Answer:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: 0 restores the default rate, < 0 stops the stream."""
+        message_id, interval_us = params[0], params[1]
+        entry = mavlink.mavlink_map.get(int(message_id)) if math.isfinite(message_id) else None
+        if entry is None or entry.msgname not in STREAMS or not math.isfinite(interval_us):
+            return Answer(UNSUPPORTED)
+        name = entry.msgname
+        if interval_us == 0:
+            self.intervals[name] = _interval(self._default_rates[name])
+        elif interval_us < 0:
+            self.intervals[name] = None
+        else:
+            self.intervals[name] = interval_us * 1e-6
+        return Answer(ACCEPTED)
+
+
+def _interval(rate: float) -> float | None:
+    return 1.0 / rate if rate > 0 else None
+
+
 class AutopilotBridge(LeafSystem):
     """Input  `imu`, `fc_attitude`, `fc_status`, `rgbd`, `down_image` from the simulated vehicle
     Input  `mocap` STATE_ESTIMATE of the world's mocap system (published on the frame channel)
     Output `fc_command` FC_COMMAND to the simulated vehicle
-    Every `period`: handles what the link received (rules of hw/autopilot_rules.py), updates
-    `fc_command`, sends the telemetry that is due (each new IMU sample once) and publishes new
-    camera frames and mocap samples on the frame channel, if any."""
+    Every `period`: handles what the links received (rules of hw/autopilot_rules.py), updates
+    `fc_command`, sends each link the telemetry that is due on it (each new IMU sample once) and
+    publishes new camera frames and mocap samples on the frame channel, if any. `endpoints`: the
+    companion link first (its clock is the autopilot's), then a ground-station link, if any."""
 
-    def __init__(self, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
+    def __init__(self, endpoints: list[AutopilotEndpoint], params: SimAutopilotParams,
                  rules: AutopilotRules, command_period: float, imu_period: float,
                  frames: FramePublisher | None = None,
                  ground_station: GroundStationService | None = None):
         super().__init__()
-        self._endpoint, self._params, self._rules, self._frames = endpoint, params, rules, frames
+        self._endpoint, self._params, self._rules, self._frames = endpoints[0], params, rules, \
+            frames
+        self._links = [AutopilotLink(e, params.default_rates()) for e in endpoints]
         self._ground_station = ground_station
         self._command_period, self._imu_period = command_period, imu_period
         self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
@@ -246,16 +308,11 @@ class AutopilotBridge(LeafSystem):
         self._command = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         self.DeclareStateOutputPort("fc_command", self._command)
-        self._intervals = {name: (1.0 / rate if rate > 0 else None)
-                           for name, rate in params.default_rates().items()}
-        self._next_send = {name: 0.0 for name in STREAMS}
-        self._one_shots: set[str] = set()
         self._next_heartbeat = self._next_command = self._next_imu = 0.0
         self._last_heartbeat = None
         self._next_heartbeat_wall = 0.0
         self._next_frames = 0.0
         self._last_imu_seq = -1
-        self._last_imu_sent = {"HIGHRES_IMU": -math.inf, "SCALED_IMU": -math.inf}
         self._frame_stamps = {name: -math.inf for name in self._cameras}
         self._mocap_stamp = -math.inf
 
@@ -263,7 +320,7 @@ class AutopilotBridge(LeafSystem):
         """Cheap when nothing is due: this runs every `period` (2 ms) in real time."""
         now = context.get_time()
         self._endpoint.clock.tick(now)
-        received = not self._endpoint.inbox.empty()
+        received = any(not link.endpoint.inbox.empty() for link in self._links)
         if received or now >= self._next_command:  # the flight controller's rate, or at once
             status = self._status.Eval(context)
             if received:
@@ -272,7 +329,7 @@ class AutopilotBridge(LeafSystem):
             discrete_state.set_value(self._command, self._rules.fc_command(
                 now, status, self._attitude.Eval(context), self._local_position.Eval(context)))
             for text in self._rules.notices:  # the failsafe actions, told as PX4 tells them
-                self._endpoint.send(self._endpoint.mav.statustext_encode(
+                self._broadcast(self._endpoint.mav.statustext_encode(
                     mavlink.MAV_SEVERITY_CRITICAL, text.encode()[:50]))
             self._rules.notices.clear()
             if self._rules.heartbeat(status) != self._last_heartbeat:
@@ -287,7 +344,12 @@ class AutopilotBridge(LeafSystem):
 
     # --- link -> simulation ----------------------------------------------------------------
     def _handle_inbox(self, now, status):
-        endpoint, mav = self._endpoint, self._endpoint.mav
+        for link in self._links:
+            self._handle_link_inbox(link, now, status)
+
+    def _handle_link_inbox(self, link: AutopilotLink, now, status):
+        """What `link` received; answers go back on it, STATUSTEXT to every link (PX4's log)."""
+        endpoint, mav = link.endpoint, link.endpoint.mav
         while True:
             try:
                 message = endpoint.inbox.get_nowait()
@@ -313,12 +375,12 @@ class AutopilotBridge(LeafSystem):
             params = [message.param1, message.param2, message.param3, message.param4]
             if message.get_type() == "COMMAND_LONG":
                 params += [message.param5, message.param6, message.param7]
-            answer = self._command_answer(message.command, params, now, status)
+            answer = self._command_answer(link, message.command, params, now, status)
             header = message.get_header()
             if answer.text:
                 severity = mavlink.MAV_SEVERITY_INFO if answer.result == ACCEPTED \
                     else mavlink.MAV_SEVERITY_CRITICAL
-                endpoint.send(mav.statustext_encode(severity, answer.text.encode()[:50]))
+                self._broadcast(mav.statustext_encode(severity, answer.text.encode()[:50]))
             endpoint.send(mav.command_ack_encode(message.command, answer.result, 0, 0,
                                                  header.srcSystem, header.srcComponent))
 
@@ -334,9 +396,9 @@ class AutopilotBridge(LeafSystem):
                 stamp=now, sent=message.time_usec * 1e-6, p_WT=p_WT, count=count + 1))
         self._received.clear()
 
-    def _command_answer(self, command, params, now, status):
+    def _command_answer(self, link: AutopilotLink, command, params, now, status):
         if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            return self._set_interval(params)
+            return link.set_interval(params)
         if command in (mavlink.MAV_CMD_REQUEST_MESSAGE,
                        mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
             message_id = 148 if command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES \
@@ -344,38 +406,28 @@ class AutopilotBridge(LeafSystem):
             entry = mavlink.mavlink_map.get(message_id)
             if entry is None or entry.msgname not in _ONE_SHOT:
                 return Answer(UNSUPPORTED)
-            self._one_shots.add(entry.msgname)
+            link.one_shots.add(entry.msgname)
             return Answer(ACCEPTED)
         return self._rules.command(command, params, now, status)
 
-    def _set_interval(self, params):
-        message_id, interval_us = params[0], params[1]
-        entry = mavlink.mavlink_map.get(int(message_id)) if math.isfinite(message_id) else None
-        if entry is None or entry.msgname not in STREAMS or not math.isfinite(interval_us):
-            return Answer(UNSUPPORTED)
-        name = entry.msgname
-        if interval_us == 0:
-            rate = self._params.default_rates()[name]
-            self._intervals[name] = 1.0 / rate if rate > 0 else None
-        elif interval_us < 0:
-            self._intervals[name] = None
-        else:
-            self._intervals[name] = interval_us * 1e-6
-        return Answer(ACCEPTED)
-
     # --- simulation -> link ----------------------------------------------------------------
+    def _broadcast(self, message) -> None:
+        """`message` on every link (each in its peer's MAVLink version, its own sequence)."""
+        for link in self._links:
+            link.endpoint.send(message)
+
     def _send_telemetry(self, context, now):
-        endpoint, mav = self._endpoint, self._endpoint.mav
+        mav = self._endpoint.mav
         wall = time.monotonic()
         if now >= self._next_heartbeat or wall >= self._next_heartbeat_wall:
             self._last_heartbeat = self._rules.heartbeat(self._status.Eval(context))
             base_mode, custom_mode, system_status = self._last_heartbeat
             # HIL_ENABLED: the vehicle is simulated (PX4 sets it with SYS_HITL = 1); a companion
             # then follows this clock (hw/hil.py)
-            endpoint.send(mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
-                                               mavlink.MAV_AUTOPILOT_PX4,
-                                               base_mode | mavlink.MAV_MODE_FLAG_HIL_ENABLED,
-                                               custom_mode, system_status))
+            self._broadcast(mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
+                                                 mavlink.MAV_AUTOPILOT_PX4,
+                                                 base_mode | mavlink.MAV_MODE_FLAG_HIL_ENABLED,
+                                                 custom_mode, system_status))
             self._next_heartbeat = now + self._params.heartbeat_period
             # Also by the wall clock: a simulation running behind real time still shows it lives.
             self._next_heartbeat_wall = wall + self._params.heartbeat_period
@@ -384,92 +436,82 @@ class AutopilotBridge(LeafSystem):
             if len(new):
                 self._send_imu(new)
                 self._next_imu = float(new.t[-1]) + self._imu_period
-        due = [name for name in ("ATTITUDE_QUATERNION", "ATTITUDE", "EXTENDED_SYS_STATE",
-                                 "SYS_STATUS") if self._due(name, now)]
-        if due:
-            attitude = self._attitude.Eval(context)
-            status = self._status.Eval(context)
-            q_NF = q_wb_to_nf(FC_ATTITUDE.get(attitude, "q_WB"))
-            w_F = b_to_frd(FC_ATTITUDE.get(attitude, "w_B"))
-            time_ms = int(FC_ATTITUDE.get(attitude, "stamp") * 1e3)
-        for name in due:
-            if name == "ATTITUDE_QUATERNION":
-                message = mav.attitude_quaternion_encode(time_ms, *q_NF, *w_F)
-            elif name == "ATTITUDE":
-                rpy = RollPitchYaw(RotationMatrix(Quaternion(q_NF / np.linalg.norm(q_NF))))
-                message = mav.attitude_encode(time_ms, *rpy.vector(), *w_F)
-            elif name == "EXTENDED_SYS_STATE":
-                message = mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED,
-                                                        _landed_state(status))
-            else:
-                sensors = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
-                           | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-                           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
-                           | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
-                           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)
-                message = mav.sys_status_encode(sensors, sensors, sensors, 0, 65535, -1, -1,
-                                                0, 0, 0, 0, 0, 0)
-            endpoint.send(message)
-        for name in ("LOCAL_POSITION_NED", "ODOMETRY"):
-            if self._due(name, now):
-                self._send_local_position(name, context)
-        if "AUTOPILOT_VERSION" in self._one_shots:
-            endpoint.send(mav.autopilot_version_encode(_CAPABILITIES, 0, 0, 0, 0, [0] * 8,
-                                                       [0] * 8, [0] * 8, 0, 0, 0))
-        self._one_shots.clear()
+        built = {}  # this tick's messages, built once for every link they are due on
+        for link in self._links:
+            for name in ("ATTITUDE_QUATERNION", "ATTITUDE", "EXTENDED_SYS_STATE", "SYS_STATUS",
+                         "LOCAL_POSITION_NED", "ODOMETRY"):
+                if link.due(name, now):
+                    if name not in built:
+                        built[name] = self._stream_message(name, context)
+                    if built[name] is not None:
+                        link.endpoint.send(built[name])
+            if "AUTOPILOT_VERSION" in link.one_shots:
+                link.endpoint.send(mav.autopilot_version_encode(
+                    _CAPABILITIES, 0, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0))
+            link.one_shots.clear()
 
-    def _send_local_position(self, name: str, context):
+    def _stream_message(self, name: str, context):
+        """The stream message `name` now (None: nothing to send, e.g. no valid position)."""
+        mav = self._endpoint.mav
+        if name in ("LOCAL_POSITION_NED", "ODOMETRY"):
+            return self._local_position_message(name, context)
+        if name == "EXTENDED_SYS_STATE":
+            return mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED,
+                                                 _landed_state(self._status.Eval(context)))
+        if name == "SYS_STATUS":
+            sensors = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+                       | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                       | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+                       | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+                       | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)
+            return mav.sys_status_encode(sensors, sensors, sensors, 0, 65535, -1, -1,
+                                         0, 0, 0, 0, 0, 0)
+        attitude = self._attitude.Eval(context)
+        q_NF = q_wb_to_nf(FC_ATTITUDE.get(attitude, "q_WB"))
+        w_F = b_to_frd(FC_ATTITUDE.get(attitude, "w_B"))
+        time_ms = int(FC_ATTITUDE.get(attitude, "stamp") * 1e3)
+        if name == "ATTITUDE_QUATERNION":
+            return mav.attitude_quaternion_encode(time_ms, *q_NF, *w_F)
+        rpy = RollPitchYaw(RotationMatrix(Quaternion(q_NF / np.linalg.norm(q_NF))))
+        return mav.attitude_encode(time_ms, *rpy.vector(), *w_F)
+
+    def _local_position_message(self, name: str, context):
         """PX4's vehicle_local_position as LOCAL_POSITION_NED or ODOMETRY (LOCAL_NED), only
-        while it is valid."""
+        while it is valid (else None)."""
         position = self._local_position.Eval(context)
         if LOCAL_POSITION.get(position, "valid") < 0.5:
-            return
+            return None
         mav, L = self._endpoint.mav, LOCAL_POSITION
         stamp = L.get(position, "stamp")
         if name == "LOCAL_POSITION_NED":
-            message = mav.local_position_ned_encode(
+            return mav.local_position_ned_encode(
                 int(stamp * 1e3), *[float(v) for v in w_to_ned(L.get(position, "p_WB"))],
                 *[float(v) for v in w_to_ned(L.get(position, "v_WB"))])
-        else:
-            attitude = self._attitude.Eval(context)
-            estimate = STATE_ESTIMATE.vector(
-                stamp=stamp, p_EB=L.get(position, "p_WB"), v_EB=L.get(position, "v_WB"),
-                q_EB=FC_ATTITUDE.get(attitude, "q_WB"),
-                var_pv=np.concatenate([L.get(position, "var_p"), L.get(position, "var_v")]))
-            message = odometry_message(mav, estimate, int(stamp * 1e6),
-                                       int(L.get(position, "reset_counter")),
-                                       mavlink.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100,
-                                       frame=mavlink.MAV_FRAME_LOCAL_NED)
-        self._endpoint.send(message)
-
-    def _due(self, name: str, now: float) -> bool:
-        interval = self._intervals[name]
-        if name in self._one_shots:
-            return True
-        if interval is None or now < self._next_send[name]:
-            return False
-        self._next_send[name] = max(self._next_send[name] + interval, now)
-        return True
+        attitude = self._attitude.Eval(context)
+        estimate = STATE_ESTIMATE.vector(
+            stamp=stamp, p_EB=L.get(position, "p_WB"), v_EB=L.get(position, "v_WB"),
+            q_EB=FC_ATTITUDE.get(attitude, "q_WB"),
+            var_pv=np.concatenate([L.get(position, "var_p"), L.get(position, "var_v")]))
+        return odometry_message(mav, estimate, int(stamp * 1e6),
+                                int(L.get(position, "reset_counter")),
+                                mavlink.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100,
+                                frame=mavlink.MAV_FRAME_LOCAL_NED)
 
     def _send_imu(self, new: ImuSamples):
         if not len(new):
             return
         self._last_imu_seq = int(new.seq[-1])
-        endpoint, mav = self._endpoint, self._endpoint.mav
+        mav = self._endpoint.mav
         for t, accel, gyro in zip(new.t, new.accel, new.gyro):
             accel_F, gyro_F = b_to_frd(accel), b_to_frd(gyro)
-            for name in ("HIGHRES_IMU", "SCALED_IMU"):
-                interval = self._intervals[name]
-                if interval is None or t - self._last_imu_sent[name] < interval - 1e-4:
-                    continue
-                self._last_imu_sent[name] = t
-                if name == "HIGHRES_IMU":
-                    endpoint.statistics.imu_sent(gyro_F, time.monotonic())
-                    endpoint.send(mav.highres_imu_encode(
+            for link in self._links:
+                if link.imu_due("HIGHRES_IMU", t):
+                    link.endpoint.statistics.imu_sent(gyro_F, time.monotonic())
+                    link.endpoint.send(mav.highres_imu_encode(
                         int(round(t * 1e6)), *accel_F, *gyro_F, 0, 0, 0, 0, 0, 0, 25.0,
                         0b111111))
-                else:
-                    endpoint.send(mav.scaled_imu_encode(
+                if link.imu_due("SCALED_IMU", t):
+                    link.endpoint.send(mav.scaled_imu_encode(
                         int(round(t * 1e3)), *_int16(accel_F / MILLI_G), *_int16(gyro_F * 1e3),
                         0, 0, 0))
 
@@ -504,11 +546,13 @@ def _landed_state(status) -> int:
     return mavlink.MAV_LANDED_STATE_IN_AIR
 
 
-def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimAutopilotParams,
-                       mocap: MocapParams, frames: FramePublisher | None = None, meshcat=None):
-    """The simulated vehicle with the autopilot bridge closing its `fc_command` loop and the
-    world's mocap system (`mocap`, as the simulation's `mocap_odometry`) feeding the frame
-    channel; returns (diagram, run loggers)."""
+def make_sim_autopilot(vehicle_config, endpoints: list[AutopilotEndpoint],
+                       params: SimAutopilotParams, mocap: MocapParams,
+                       frames: FramePublisher | None = None, meshcat=None):
+    """The simulated vehicle with the autopilot bridge (on `endpoints`: the companion link, then
+    a ground-station link if any) closing its `fc_command` loop and the world's mocap system
+    (`mocap`, as the simulation's `mocap_odometry`) feeding the frame channel; returns (diagram,
+    run loggers)."""
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat,
                                                                  autopilot_outputs=True))
@@ -518,9 +562,9 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
                            params.rules)
     ground_station = GroundStationService(emulated_parameters(
         vehicle_config.flight_controller, rules, params.system_id, params.component_id),
-        endpoint.mav)
+        endpoints[0].mav)
     bridge = builder.AddNamedSystem("autopilot_bridge", AutopilotBridge(
-        endpoint, params, rules, vehicle_config.flight_controller.period,
+        endpoints, params, rules, vehicle_config.flight_controller.period,
         vehicle_config.imu.period, frames, ground_station))
     for name in ("imu", "fc_attitude", "fc_status", "rgbd", "down_image"):
         builder.Connect(vehicle.GetOutputPort(name), bridge.GetInputPort(name))
@@ -530,6 +574,8 @@ def make_sim_autopilot(vehicle_config, endpoint: AutopilotEndpoint, params: SimA
     builder.Connect(bridge.GetOutputPort("odometry"), vehicle.GetInputPort("odometry"))
     builder.Connect(vehicle.GetOutputPort("local_position"),
                     bridge.GetInputPort("local_position"))
+    if meshcat is not None:  # framed on the vehicle, its path drawn, the FC's mode shown
+        add_vehicle_flight_view(builder, meshcat, vehicle)
     loggers = add_run_logging(builder, vehicle, bridge.GetOutputPort("fc_command"))
     loggers.add(builder, "local_position", vehicle.GetOutputPort("local_position"),
                 LOCAL_POSITION)
@@ -544,25 +590,30 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
                       duration: float | None = None, seed: int = 0, run_dir=None,
                       frame_address: str | None = None, stats_file=None, meshcat=None,
                       record=None, ready=None, realtime_rate: float = 1.0,
-                      wait_for_client: bool = True):
-    """Serves the simulated vehicle on `listen` in real time until `duration` or Ctrl-C/SIGTERM;
-    writes the run folder (with ground truth) and, if asked, the link statistics (JSON).
-    `wait_for_client`: the simulation (the world, e.g. a landing target's drive, and the
-    autopilot's clock) starts at the first valid MAVLink frame from a client, not at launch.
+                      wait_for_client: bool = True, gcs: str | None = None):
+    """Serves the simulated vehicle on `listen` (the companion link) and, if given, `gcs` (a
+    second MAVLink instance for a ground station) in real time until `duration` or
+    Ctrl-C/SIGTERM; writes the run folder (with ground truth) and, if asked, the link statistics
+    (JSON). `wait_for_client`: the simulation (the world, e.g. a landing target's drive, and the
+    autopilot's clock) starts at the first valid MAVLink frame from a client on either link, not
+    at launch.
     `realtime_rate` below 1 slows the simulation (and the autopilot's clock) for a loaded machine;
     the companion must run at the same rate (`alight hil --realtime-rate`)."""
     from alight.hw.realtime import WallClock, run_realtime
     wall_clock = WallClock(realtime_rate)  # checks the rate before anything opens
     clock = SimClock(realtime_rate)
-    endpoint = AutopilotEndpoint.open(listen, params, clock)
-    frames = FramePublisher(frame_address) if frame_address else None
+    endpoints = [AutopilotEndpoint.open(listen, params, clock)]
+    frames = None
     try:
+        if gcs is not None:
+            endpoints.append(AutopilotEndpoint.open(gcs, params, clock))
+        frames = FramePublisher(frame_address) if frame_address else None
         # The world's mocap: MocapParams' defaults, as a scenario's `onboard.mocap`.
-        diagram, loggers = make_sim_autopilot(vehicle_config, endpoint, params, MocapParams(),
+        diagram, loggers = make_sim_autopilot(vehicle_config, endpoints, params, MocapParams(),
                                               frames, meshcat)
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir("sim-autopilot",
                                                                              seed)
-        metadata = {"command": "sim-autopilot", "seed": seed, "listen": listen,
+        metadata = {"command": "sim-autopilot", "seed": seed, "listen": listen, "gcs": gcs,
                     "config": vehicle_config, "autopilot": params, "realtime_rate": realtime_rate}
         open_run_folder(run_dir, loggers, diagram, metadata)  # written as it flies
         if meshcat is not None and record is not None:
@@ -572,18 +623,23 @@ def run_sim_autopilot(listen: str, vehicle_config, params: SimAutopilotParams,
         simulator, report = run_realtime(
             diagram, duration, wall_clock, seed=seed,
             safe_stop=lambda: "simulated vehicle: stops with the process",
-            start_when=(lambda: endpoint.counters.messages > 0) if wait_for_client else None)
+            start_when=(lambda: any(e.counters.messages > 0 for e in endpoints))
+            if wait_for_client else None)
         if meshcat is not None and record is not None:
             write_recording(meshcat, record)
     finally:
-        endpoint.close()
+        for endpoint in endpoints:
+            endpoint.close()
         if frames is not None:
             frames.close()
     write_run_folder(run_dir, loggers, simulator, {
         **metadata, "duration": simulator.get_context().get_time(),
         "realtime": dc.asdict(report)})
-    statistics = {"realtime": dc.asdict(report), "link": dc.asdict(endpoint.counters_snapshot()),
-                  **endpoint.statistics.summary()}
+    statistics = {"realtime": dc.asdict(report),
+                  "link": dc.asdict(endpoints[0].counters_snapshot()),
+                  **endpoints[0].statistics.summary()}
+    if gcs is not None:
+        statistics["gcs_link"] = dc.asdict(endpoints[1].counters_snapshot())
     if stats_file is not None:
         Path(stats_file).write_text(json.dumps(statistics, indent=2))
     LOG.info("sim-autopilot: %s", report.lines()[0])

@@ -4,6 +4,8 @@ with the unchanged value), the mission protocol with no mission; then MAVSDK (a 
 client, as a ground station) against `alight sim-autopilot`: it finds a PX4, reads all parameters
 with PX4's names and types, sets one, is refused a read-only one, downloads an empty mission and
 reads telemetry; and the parameter it set changes the autopilot's behaviour (its OFFBOARD rule)."""
+import json
+import socket
 import struct
 import time
 
@@ -20,7 +22,7 @@ from alight.hw.ground_station import INT32, REAL32, GroundStationService, emulat
 from alight.hw.link import CommandDenied, LinkParams, MavlinkLink
 from alight.hw.realtime import WallClock
 from alight.systems.autopilot.config import FlightControllerParams
-from mavlink_fake import FrameEncoder, SimAutopilotProcess
+from mavlink_fake import FrameEncoder, SimAutopilotProcess, free_udp_port
 
 GCS = FrameEncoder(255, 190)
 
@@ -169,3 +171,95 @@ def test_mavsdk_as_a_ground_station_reads_and_sets_parameters_and_finds_no_missi
     finally:
         link.close()
         assert server.stop() == 0, "".join(server.output)
+
+
+class UdpClient:
+    """A MAVLink client on its own UDP socket (`mavlink1`: sends MAVLink 1 frames, as pymavlink
+    by default); `receive(seconds)` -> [(version, message)] of what came in meanwhile."""
+
+    def __init__(self, port: int, system: int, component: int, mavlink1: bool):
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.socket.bind(("127.0.0.1", 0))
+        self.socket.settimeout(0.05)
+        self.address, self.mavlink1 = ("127.0.0.1", port), mavlink1
+        self.encoder = FrameEncoder(system, component)
+        self.mav = self.encoder.mav
+
+    def send(self, message):
+        self.encoder._data = bytearray()
+        self.mav.send(message, force_mavlink1=self.mavlink1)
+        self.socket.sendto(bytes(self.encoder._data), self.address)
+
+    def receive(self, seconds: float) -> list:
+        got, deadline = [], time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            try:
+                data = self.socket.recv(65535)
+            except TimeoutError:
+                continue
+            parser = mavlink.MAVLink(None)
+            parser.robust_parsing = True
+            got += [(1 if m.get_msgbuf()[0] == mavlink.PROTOCOL_MARKER_V1 else 2, m)
+                    for m in parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
+        return got
+
+    def close(self):
+        self.socket.close()
+
+
+def kinds(received) -> set:
+    return {m.get_type() for _, m in received}
+
+
+@pytest.mark.mission
+def test_a_ground_station_link_beside_the_companion_link(tmp_path):
+    """`alight sim-autopilot --gcs`: a second MAVLink instance, as PX4 SITL's 14550 beside 14540.
+    Each link has its own peer (a valid frame names it; another address is not answered), its own
+    MAVLink version (MAVLink 1 ground station, MAVLink 2 companion), its own stream rates (an
+    ATTITUDE stream stopped on the companion link still flows to the ground station); parameter,
+    mission and command requests are answered on the link they came on only."""
+    gcs_port = free_udp_port()
+    server = SimAutopilotProcess(tmp_path / "sim-autopilot", duration=60.0,
+                                 args=("--gcs", f"udp:127.0.0.1:{gcs_port}"))
+    companion = UdpClient(server.port, 1, mavlink.MAV_COMP_ID_ONBOARD_COMPUTER, mavlink1=False)
+    gcs = UdpClient(gcs_port, 255, 190, mavlink1=True)
+    stranger = UdpClient(gcs_port, 254, 190, mavlink1=False)
+    heartbeat = (mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    try:
+        companion.send(companion.mav.heartbeat_encode(*heartbeat))
+        gcs.send(gcs.mav.heartbeat_encode(*heartbeat))
+        time.sleep(0.3)
+        stranger.send(stranger.mav.heartbeat_encode(*heartbeat))  # the gcs link has its peer
+        on_companion, on_gcs = companion.receive(1.5), gcs.receive(0.1)
+        assert {"HEARTBEAT", "ATTITUDE", "HIGHRES_IMU"} <= kinds(on_companion) & kinds(on_gcs)
+        assert {v for v, _ in on_companion} == {2} and {v for v, _ in on_gcs} == {1}
+        assert stranger.receive(0.2) == []
+        # Stop ATTITUDE on the companion link only
+        companion.send(companion.mav.command_long_encode(
+            1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mavlink.MAVLINK_MSG_ID_ATTITUDE, -1,
+            0, 0, 0, 0, 0))
+        # The ground station asks for a parameter, the mission and the autopilot's version
+        gcs.send(gcs.mav.param_request_read_encode(1, 1, b"MPC_THR_HOVER", -1))
+        gcs.send(gcs.mav.mission_request_list_encode(1, 1, 0))
+        gcs.send(gcs.mav.command_long_encode(1, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+                                             0, 0, 0, 0, 0, 0))
+        time.sleep(0.5)  # the stop takes effect
+        companion.receive(0.05)
+        on_companion, on_gcs = companion.receive(1.0), gcs.receive(0.1)
+        gcs_messages = {m.get_type(): m for _, m in on_gcs}
+        assert gcs_messages["PARAM_VALUE"].param_value == pytest.approx(0.637)
+        assert gcs_messages["MISSION_COUNT"].count == 0
+        assert gcs_messages["COMMAND_ACK"].command == mavlink.MAV_CMD_REQUEST_MESSAGE
+        assert gcs_messages["COMMAND_ACK"].result == mavlink.MAV_RESULT_ACCEPTED
+        assert "AUTOPILOT_VERSION" in gcs_messages and "ATTITUDE" in gcs_messages
+        assert {v for v, _ in on_gcs} == {1}
+        assert not {"PARAM_VALUE", "MISSION_COUNT", "COMMAND_ACK", "AUTOPILOT_VERSION",
+                    "ATTITUDE"} & kinds(on_companion)
+        assert {"HEARTBEAT", "ATTITUDE_QUATERNION"} <= kinds(on_companion)
+    finally:
+        for client in (companion, gcs, stranger):
+            client.close()
+        assert server.stop() == 0, "".join(server.output)
+    statistics = json.loads(server.stats.read_text())
+    assert statistics["gcs_link"]["messages_v1"] >= 4 and statistics["link"]["messages_v1"] == 0

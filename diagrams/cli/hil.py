@@ -17,6 +17,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     where.add_argument("--local", action="store_true",
                        help="start `alight sim-autopilot` with this scenario's world on a free "
                             "local port and fly against it (a HIL demo in one command)")
+    parser.add_argument("--gcs", metavar="URL",
+                        help="with --local: the sim-autopilot's ground-station link (its "
+                             "--gcs, e.g. udp:127.0.0.1:14550) for a ground station or MAVSDK "
+                             "client beside the flight")
     parser.add_argument("--mission", default="hover", choices=["hover", "fly", "land"],
                         help="hover: scripted attitude/thrust profile; fly: --waypoints with the "
                              "linear MPC; land: the landing mission of --scenario (fly and land "
@@ -68,13 +72,18 @@ def run(args) -> int:
     from alight.hw.opencv_camera import CameraError
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     params = load_mavlink_vehicle_params(args.link_config)
+    if args.gcs is not None and not args.local:
+        print("alight hil: --gcs goes with --local (the simulated autopilot's second link)",
+              file=sys.stderr)
+        return 2
     try:
         scenario = _hil_scenario(args)
     except ValueError as e:  # ConfigError is a ValueError
         print(f"alight hil: {e}", file=sys.stderr)
         return 2
     try:
-        with (local_autopilot(scenario, args.realtime_rate, args.run_dir) if args.local
+        with (local_autopilot(scenario, args.realtime_rate, args.run_dir, args.gcs)
+              if args.local
               else contextlib.nullcontext(args.connect)) as connect:
             result = run_hil(connect, scenario, params, duration=args.duration,
                              run_dir=args.run_dir,
@@ -96,11 +105,12 @@ def run(args) -> int:
 
 
 @contextlib.contextmanager
-def local_autopilot(scenario, realtime_rate: float, run_dir: str | None, ready_timeout=120.0):
+def local_autopilot(scenario, realtime_rate: float, run_dir: str | None,
+                    gcs: str | None = None, ready_timeout=120.0):
     """`alight sim-autopilot` with `scenario`'s world (its resolved YAML) on a free loopback UDP
-    port, its output prefixed 'sim-autopilot| ' on stderr; yields the connection string; Ctrl-C
-    (SIGINT) to it at the end, which writes its run folder (RUN_DIR-sim-autopilot with
-    --run-dir). RuntimeError if it does not get ready."""
+    port (and its ground-station link on `gcs`, if given), its output prefixed 'sim-autopilot| '
+    on stderr; yields the connection string; Ctrl-C (SIGINT) to it at the end, which writes its
+    run folder (RUN_DIR-sim-autopilot with --run-dir). RuntimeError if it does not get ready."""
     import signal
     import socket
     import subprocess
@@ -114,6 +124,8 @@ def local_autopilot(scenario, realtime_rate: float, run_dir: str | None, ready_t
         command = [sys.executable, "-m", "alight.diagrams.cli", "sim-autopilot", "--listen", url,
                    "--scenario", str(write_scenario(folder, scenario)),
                    "--realtime-rate", str(realtime_rate)]
+        if gcs is not None:
+            command += ["--gcs", gcs]
         if run_dir is not None:
             command += ["--run-dir", f"{run_dir.rstrip('/')}-sim-autopilot"]
         process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,

@@ -13,6 +13,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_common(parser, flags=(*VEHICLE_FLAGS, "target_speed"))
     parser.add_argument("--listen", default="udp:127.0.0.1:14540",
                         help="MAVLink endpoint (udp:HOST:PORT binds it; see docs/hardware.md)")
+    parser.add_argument("--gcs", metavar="URL",
+                        help="a second MAVLink instance for a ground station (as PX4 SITL's "
+                             "udp 14550 beside the offboard link 14540), e.g. "
+                             "udp:127.0.0.1:14550: its own peer, telemetry, commands, "
+                             "parameters, mission requests")
     parser.add_argument("--autopilot", default="sim_autopilot.yaml",
                         help="MAVLink endpoint YAML (a path, or a file name in models/)")
     parser.add_argument("--duration", type=float, metavar="S",
@@ -54,9 +59,10 @@ def run(args) -> int:
             args.listen, config, params, duration=args.duration, seed=scenario.random_seed,
             run_dir=args.run_dir, frame_address=frames, stats_file=args.stats, meshcat=meshcat,
             record=args.record, realtime_rate=args.realtime_rate,
-            wait_for_client=args.wait_for_client, ready=lambda: print(
-                f"sim-autopilot: ready on {args.listen}" + (f", camera frames on {frames}"
-                                                            if frames else ""), flush=True))
+            wait_for_client=args.wait_for_client, gcs=args.gcs, ready=lambda: print(
+                f"sim-autopilot: ready on {args.listen}"
+                + (f", ground station on {args.gcs}" if args.gcs else "")
+                + (f", camera frames on {frames}" if frames else ""), flush=True))
     except (MavlinkConnectionError, ValueError) as e:
         print(f"alight sim-autopilot: {e}", file=sys.stderr)
         return 2
