@@ -21,8 +21,8 @@ from alight.systems.boundary import CameraFrame
 from alight.systems.params import load_params
 from alight.systems.perception.pattern import Pattern
 from alight.systems.perception.target_ekf import TargetEkf
-from alight.systems.perception.target_estimator import (EstimatorState, PoseHistory,
-                                                        TargetEstimator)
+from alight.systems.perception.target_estimator import (PERCEPTION_STATUS, EstimatorState,
+                                                        PoseHistory, TargetEstimator)
 from alight.systems.sensors.down_camera import DownCameraParams, GeometricDownCamera
 
 PARAMS = load_params(DownCameraParams, model_path("down_camera.yaml"))
@@ -163,8 +163,11 @@ def track(params: DownCameraParams, frames: int, seed: int):
             st.poses.add(s, X_WB.translation(), q_WB, np.zeros(3))
         X_TC = X_WT.inverse() @ X_WB @ params.X_BC()
         uv, truth = dut.candidates(X_TC, X_TC, rng)
+        initializations = PERCEPTION_STATUS.get(st.status, "initializations")
         estimator.process(st, CameraFrame(stamp=t, calibration=lens.calibration(),
                                           keypoints=uv))
+        if PERCEPTION_STATUS.get(st.status, "initializations") != initializations:
+            continue   # re-initialized: the keypoints' symmetry mapping may have changed
         rectified = lens.rectify_points(uv)
         true_uv = lens.rectified_project(X_TC.inverse().multiply(PATTERN.p_TK.T).T)
         same = same_keypoints(st.ekf.q, X_WT.rotation())
