@@ -4,9 +4,10 @@ are not synchronized to the IMU, in two sources (DESIGN.md "Simulation fidelity"
 - `RenderedDownCamera`: a Drake `RgbdSensor` pinhole colour render of the scene, distorted through
   the lens model (`down_camera_lens.Lens`) by `cv2.remap`, converted to grey, with pixel noise;
 - `GeometricDownCamera`: a sensor model of the image front end's output: the landing pattern's
-  keypoints projected through the same lens model as unlabelled candidates, with the misses (motion
-  blur, distance, the vehicle's legs), noise, outliers and false candidates of the rendered pipeline
-  (calibrated: bench/sensing_calibration.py); `mode: labelled` keeps the idealized labelled keypoints.
+  keypoints projected through the same lens model as unlabelled candidates, with the misses
+  (motion blur, distance, the vehicle's legs), noise, outliers and false candidates of the
+  rendered pipeline (calibrated: bench/sensing_calibration.py); `mode: labelled` keeps the
+  idealized labelled keypoints.
 
 Timing, common to both: exposures at `phase + k period` (not on the IMU's sample grid); a frame is
 published `latency` after its exposure; its stamp is the exposure time plus `stamp_offset` (the

@@ -1,13 +1,12 @@
-"""What a downward range or flow sensor sees (DESIGN.md "Simulation fidelity": range and flow sensors
-measure against the scene's geometry, moving vehicles included): a ray from the body against the
-ground plane z = 0 and the target vehicle's collision boxes (its platform and body, from the
+"""What a downward range or flow sensor sees (DESIGN.md "Simulation fidelity": range and flow
+sensors measure against the scene's geometry, moving vehicles included): a ray from the body against
+the ground plane z = 0 and the target vehicle's collision boxes (its platform and body, from the
 target's SDF, posed by the ground truth's p_WT, q_WT when `target_present`).
 """
 import functools
 
 import numpy as np
 from pydrake.geometry import Box, SceneGraph
-from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 
