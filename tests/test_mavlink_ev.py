@@ -35,7 +35,7 @@ from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_E
                                      TARGET_ESTIMATE, ActiveMode, ImuSamples)
 from alight.systems.rotations import heading_quaternion
 from alight.systems.thrust_curve import GRAVITY
-from mavlink_fake import FakeAutopilot, SimAutopilotProcess
+from mavlink_fake import FakeAutopilot, HilProcess, SimAutopilotProcess, free_udp_port
 from test_mavlink_hil import fly_hil
 from test_mavlink_mavsdk import wait_for
 
@@ -338,6 +338,56 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
           "in", seconds, "s")
     assert local["reset_counter"].max() == 0
     assert local["rejected"].max() < 0.01 * 30 * 6 * seconds  # 30 Hz, 3 positions + 3 velocities
+
+
+
+@pytest.mark.mission
+def test_mavsdk_on_the_ground_station_link_follows_a_hil_flight(tmp_path):
+    """`alight hil --mission fly` flies over the companion link and forwards its estimate as
+    ODOMETRY; a MAVSDK client (a ground station) on the autopilot's second link (`--gcs`) reads
+    `position_velocity_ned`, which follows the ground truth within the odometry noise EKF2
+    assumes (0.1 m), plus the pairing of each position with the latest attitude time."""
+    port, gcs_port = free_udp_port(), free_udp_port()
+    hil = HilProcess(port, ("--mission", "fly", "--waypoints", "0,0,1.5; 1,0,1.5",
+                            "--run-dir", str(tmp_path / "hil")))
+    server = SimAutopilotProcess(tmp_path / "sim-autopilot", duration=40.0, port=port,
+                                 frames=True, args=("--gcs", f"udp:127.0.0.1:{gcs_port}"))
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    seen = {"attitude": [], "position": []}
+    try:
+        assert mavsdk.add_any_connection(f"udpout://127.0.0.1:{gcs_port}") == \
+            ConnectionResult.SUCCESS
+        system = mavsdk.first_autopilot(15.0)
+        assert system is not None
+        telemetry = Telemetry(system)
+        telemetry.subscribe_attitude_quaternion(lambda q, _: seen["attitude"].append(q))
+        telemetry.subscribe_position_velocity_ned(lambda pv, _: seen["position"].append(
+            (seen["attitude"][-1].timestamp_us * 1e-6 if seen["attitude"] else math.nan, pv)))
+        status = hil.wait(150.0)
+    finally:
+        mavsdk.destroy()
+        assert server.stop() == 0, "".join(server.output)
+    assert status == 0, hil.text
+    sim = read_run(server.run_dir)
+    truth = sim["ground_truth"]
+    t, p = truth["time"].to_numpy(), truth[["p_WB_0", "p_WB_1", "p_WB_2"]].to_numpy()
+    # While the odometry flows (when `alight hil` has ended, EKF2 dead-reckons on the IMU)
+    last_vision = sim["local_position"]["last_fusion"].max()
+    flying = [(s, pv) for s, pv in seen["position"]
+              if s <= last_vision and math.isfinite(pv.position.north_m)]
+    ned = np.array([[pv.position.north_m, pv.position.east_m, pv.position.down_m]
+                    for _, pv in flying])
+    stamps = np.array([s for s, _ in flying])
+    true_ned = np.column_stack([np.interp(stamps, t, p[:, 0]), -np.interp(stamps, t, p[:, 1]),
+                                -np.interp(stamps, t, p[:, 2])])
+    error = np.linalg.norm(ned - true_ned, axis=1)
+    print(f"MAVSDK (ground-station link) position error p50 {np.median(error):.3f} p99 "
+          f"{np.percentile(error, 99):.3f} m over {len(error)} samples, "
+          f"{np.ptp(stamps):.1f} s; the vehicle flew {np.ptp(p[:, 0]):.2f} m x, "
+          f"{np.ptp(p[:, 2]):.2f} m z")
+    assert len(error) > 100 and np.ptp(stamps) > 8.0
+    assert np.ptp(true_ned[:, 0]) > 0.8 and np.ptp(true_ned[:, 2]) > 1.2  # it saw the flight
+    assert np.percentile(error, 99) < 0.1 + 0.04
 
 
 class VisionCompanion:
