@@ -29,7 +29,7 @@ class Scripted(LeafSystem):
         self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
         self.DeclareVectorOutputPort("state_estimate", STATE_ESTIMATE.size, self._estimate)
         self.DeclareVectorOutputPort("target_estimate", TARGET_ESTIMATE.size, self._target_estimate)
-        self._seen = [np.nan]
+        self._last = None   # (time, p, v) of the last sighting
 
     def _estimate(self, context, output):
         t = context.get_time()
@@ -44,22 +44,34 @@ class Scripted(LeafSystem):
             stamp=t, p_EB=p, v_EB=v, var_pv=np.full(6, 1e-4), var_heading=1e-4))
 
     def _target_estimate(self, context, output):
+        """As the target EKF: unseen, the last seen motion predicted at constant velocity with
+        its position variance grown as L(6)-(8) (q = 0.1 m/s/sqrt(Hz)); invalid before the
+        first sighting."""
         t = context.get_time()
         seen = self._target(t)
-        p, v = (seen if seen is not None else (np.zeros(3), np.zeros(3)))
-        last = t if seen is not None else np.nan
+        if seen is not None:
+            self._last = (t, *seen)
+        if self._last is None:
+            p, v, last, dt = np.zeros(3), np.zeros(3), np.nan, 0.0
+        else:
+            last, p, v = self._last
+            dt = t - last
+            p = p + v * dt
+        var_v = 1e-2 + 0.01 * dt
         output.SetFromVector(TARGET_ESTIMATE.pack(
-            stamp=t, p_WT=p, q_WT=[1, 0, 0, 0], v_WT=v, var_p=np.full(3, 1e-3),
-            var_rot=np.full(3, 1e-3), var_v=np.full(3, 1e-2), last_measurement=last,
-            valid=float(seen is not None), keypoints=9.0 if seen is not None else 0.0,
+            stamp=t, p_WT=p, q_WT=[1, 0, 0, 0], v_WT=v,
+            var_p=np.full(3, 1e-3 + 1e-2 * dt ** 2 + 0.01 * dt ** 3 / 3.0),
+            var_rot=np.full(3, 1e-3), var_v=np.full(3, var_v), last_measurement=last,
+            valid=float(self._last is not None), keypoints=9.0 if seen is not None else 0.0,
             frame_counter=0.0))
 
 
-def fly(target, duration, vehicle=None, params=None):
+def fly(target, duration, vehicle=None, params=None, script=None):
+    """The mission flown against `script` (default Scripted(target, vehicle)) for `duration` s."""
     params = params or LandingMissionParams()
     builder = DiagramBuilder()
     mission = builder.AddSystem(LandingMission(params))
-    script = builder.AddSystem(Scripted(target, vehicle))
+    script = builder.AddSystem(script or Scripted(target, vehicle))
     builder.Connect(mission.GetOutputPort("reference"), script.GetInputPort("reference"))
     builder.Connect(script.GetOutputPort("state_estimate"), mission.GetInputPort("state_estimate"))
     builder.Connect(script.GetOutputPort("target_estimate"),
@@ -114,23 +126,35 @@ def test_ideal_vehicle_runs_every_mode_in_order_and_disarms():
     assert z.max() == pytest.approx(0.22 + 5.2, abs=1e-6)
 
 
-def test_detection_loss_in_follow_returns_to_waypoint_after_the_timeout():
+def lost_after() -> float:
+    """Seconds unseen after which the scripted estimate's 3-sigma horizontal radius passes the
+    default 1.5 m: 2 (1e-3 + 1e-2 dt^2 + 0.01 dt^3 / 3) = 0.5^2."""
+    roots = np.roots([2 * 0.01 / 3, 2 * 1e-2, 0.0, 2 * 1e-3 - 0.25])
+    return float(max(r.real for r in roots if abs(r.imag) < 1e-9))
+
+
+def test_target_unseen_in_follow_is_lost_when_its_prediction_is_too_uncertain():
     # The vehicle (scripted) hovers at the waypoint: 3 m from the target, it stays in Follow.
-    logs = fly(moving_target(1.0, appear=17.0, hide=[(18.0, 30.0)]), 25.0, vehicle=HOVER)
+    logs = fly(moving_target(1.0, appear=17.0, hide=[(18.02, 30.0)]), 25.0, vehicle=HOVER)
     events = transitions(logs)
     follow = [t for t, m, _ in events if m == Mode.FOLLOW][0]
     back = [(t, r) for t, m, r in events if m == Mode.WAYPOINT and t > follow]
-    assert back and back[0][1] == Reason.DETECTION_TIMEOUT
-    assert 18.0 + 0.5 <= back[0][0] <= 18.0 + 0.5 + 0.1   # t_DetectionTimeOut, one tick
+    assert back and back[0][1] == Reason.TARGET_LOST
+    seen = 18.0                                                  # the last tick it was seen
+    # the next tick, logged one tick later
+    assert seen + lost_after() <= back[0][0] <= seen + lost_after() + 0.1 + 1e-6
     assert all(m < Mode.LANDING_P1 for _, m, _ in events)
 
 
-def test_after_a_detection_loss_the_mission_follows_again_and_lands():
+def test_a_short_loss_in_phase_1_aborts_to_follow_not_to_the_waypoint_and_lands():
+    """The ideal vehicle is in Landing Phase 1 at 17.1 s; unseen 17.3-19.0 s, the growing
+    uncertainty aborts the descent (predicted miss over 0.6 m) to Follow, never to Waypoint."""
     events = transitions(fly(moving_target(2.0, appear=17.0, hide=[(17.3, 19.0)]), 40.0))
-    modes = [m for _, m, _ in events]
-    lost = modes.index(Mode.WAYPOINT, 2)  # the return after the first Follow
-    assert events[lost][2] == Reason.DETECTION_TIMEOUT and 17.8 <= events[lost][0] <= 17.9
-    assert modes[lost + 1:] == [Mode.FOLLOW, Mode.LANDING_P1, Mode.LANDING_P2, Mode.LANDED]
+    assert [m for _, m, _ in events] == [Mode.TAKING_OFF, Mode.WAYPOINT, Mode.FOLLOW,
+                                         Mode.LANDING_P1, Mode.FOLLOW, Mode.LANDING_P1,
+                                         Mode.LANDING_P2, Mode.LANDED]
+    abort = events[4]
+    assert abort[2] == Reason.PREDICTED_MISS and 17.3 < abort[0] < 19.0
 
 
 def test_detection_loss_in_landing_phase_2_does_not_cancel_the_landing():

@@ -1,17 +1,33 @@
 """The landing paper's mission state machine, L Sec. 6.4 and Fig. 9, with its reference generation
 (L Sec. 6.3): Idle -> Taking Off -> Waypoint -> Follow -> Landing Phase 1 -> Landing Phase 2 ->
-Landed, with the returns to Waypoint on detection loss.
+Landed, with the return to Waypoint when the target is lost and the return to Follow when the
+landing is predicted to miss (beyond the paper, its future work, L Sec. 8; docs/landing.md).
+
+Target loss as a tracker handles it: the target estimate (the target EKF, L(5)-(8)) is its
+constant-velocity prediction with a covariance that grows while no measurement comes. The target
+is *tracked* while the estimate is valid and its predicted horizontal position is known within
+`lost_radius` at `sigma_k` standard deviations (k sigma_xy, sigma_xy^2 = var_x + var_y); during a
+short loss the mission keeps pursuing the predicted position and the detector searches around it.
+Only a target no longer tracked is lost (L's fixed t_DetectionTimeOut only starts the pursuit).
+
+Predicted miss at touchdown: |e_xy| (the horizontal tracking error now) + k sigma_xy(t_blind), the
+target's horizontal position uncertainty propagated over the blind end of the descent (from
+`blind_height` above the target, where the pattern no longer fits the down camera's view, to
+touchdown) with the constant-velocity model (var_p + var_v t^2 + q^2 t^3 / 3 per axis, q the EKF's
+velocity noise density; the position-velocity cross-covariance is not in the estimate).
 
 - Idle: disarmed, zero thrust. On the first valid state estimate: Taking Off.
 - Taking Off: arm (rotors idle for `arm_time`), climb to `takeoff_height` above the start at
   `takeoff_velocity`. Then Waypoint.
 - Waypoint: fly to and hover at the waypoint. On a detection (a valid target estimate whose last
-  accepted measurement is younger than `detection_timeout`): Follow.
+  accepted measurement is younger than `detection_timeout`, and tracked): Follow.
 - Follow: position and velocity references from the target (predicted, low-pass filtered), at the
-  waypoint's height. Detection lost for `detection_timeout`: Waypoint. Horizontal position and
-  velocity errors under `position_threshold`, `velocity_threshold`: Landing Phase 1.
-- Landing Phase 1: as Follow, descending at `descending_p1`; detection timeout: Waypoint. Height
-  above the target under `landing_p2_offset`: Landing Phase 2.
+  waypoint's height (climbing back to it at `climb_rate` after an abort). Target lost: Waypoint.
+  Back at the waypoint's height with the horizontal position and velocity errors under
+  `position_threshold`, `velocity_threshold` and k sigma_xy(t_go) under `miss_limit`: Phase 1.
+- Landing Phase 1: as Follow, descending at `descending_p1`; target lost: Waypoint;
+  k sigma_xy(t_go) over `miss_limit`: Follow (abort). Height above the target under
+  `landing_p2_offset`: Landing Phase 2 if the predicted miss is under `miss_limit`, else Follow.
 - Landing Phase 2: descending at `descending_p2`; no timeout (it cannot be cancelled). Height
   above the target under `landed_offset`: Landed.
 - Landed: disarm.
@@ -40,7 +56,13 @@ class LandingMissionParams:
     cutoff_position: float = bounded(30.0, 0.01, 1000.0, "Hz")  # f_CutOffPosition
     cutoff_velocity: float = bounded(30.0, 0.01, 1000.0, "Hz")  # f_CutOffVelocity
     t_prediction: float = bounded(0.1, 0.0, 5.0, "s")           # t_Prediction
-    detection_timeout: float = bounded(0.5, 0.05, 60.0, "s")    # t_DetectionTimeOut
+    detection_timeout: float = bounded(0.5, 0.05, 60.0, "s")    # t_DetectionTimeOut (to Follow)
+    sigma_k: float = bounded(3.0, 0.5, 10.0)                    # k of the k-sigma bounds below
+    lost_radius: float = bounded(1.5, 0.05, 50.0, "m")          # k sigma_xy now: lost beyond
+    miss_limit: float = bounded(0.6, 0.01, 10.0, "m")           # predicted miss: abort beyond
+    blind_height: float = bounded(1.0, 0.0, 50.0, "m")          # the pattern unseen below
+    target_velocity_noise: float = bounded(0.1, 0.0, 10.0, "m/s/sqrt(Hz)")  # EKF's, L Sec. 5.2.2
+    climb_rate: float = bounded(1.3, 0.05, 10.0, "m/s")         # back to Follow's height
     position_threshold: float = bounded(0.8, 0.05, 20.0, "m")   # d_PositionThreshold
     velocity_threshold: float = bounded(0.8, 0.05, 20.0, "m/s")  # d_VelocityThreshold
     landing_p2_offset: float = bounded(2.5, 0.1, 50.0, "m")     # z_LandingP2Offset
@@ -51,6 +73,24 @@ class LandingMissionParams:
     start_delay: float = bounded(1.0, 0.0, 60.0, "s")           # settle before arming
     arm_time: float = bounded(0.5, 0.0, 10.0, "s")              # rotors idle before lift-off
     heading: float = bounded(0.0, -360.0, 360.0, "deg")         # psi_r (zero in the paper)
+
+
+def horizontal_sigma(target: np.ndarray, t_ahead: float, velocity_noise: float) -> float:
+    """Std [m] of the target's horizontal position predicted `t_ahead` [s] past the estimate with
+    the EKF's constant-velocity model, L(6)-(8): the square root of the sum over x, y of
+    var_p + var_v t^2 + q^2 t^3 / 3 (q: `velocity_noise`, white-noise acceleration)."""
+    var_p = TARGET_ESTIMATE.get(target, "var_p")[:2]
+    var_v = TARGET_ESTIMATE.get(target, "var_v")[:2]
+    return float(np.sqrt(np.sum(var_p + var_v * t_ahead ** 2
+                                + velocity_noise ** 2 * t_ahead ** 3 / 3.0)))
+
+
+def time_to_touchdown(height: float, p: LandingMissionParams) -> float:
+    """Remaining descent time [s] from `height` above the target: Landing Phase 1 at
+    `descending_p1` down to `landing_p2_offset`, then Phase 2 at `descending_p2` (L Table 2)."""
+    phase_1 = max(height - p.landing_p2_offset, 0.0) / p.descending_p1
+    phase_2 = max(min(height, p.landing_p2_offset) - p.landed_offset, 0.0) / p.descending_p2
+    return phase_1 + phase_2
 
 
 class Mode(enum.IntEnum):
@@ -68,19 +108,22 @@ class Reason(enum.IntEnum):
     ESTIMATE_VALID = 1        # Idle -> Taking Off
     TAKEOFF_HEIGHT = 2        # Taking Off -> Waypoint
     DETECTION = 3             # Waypoint -> Follow
-    DETECTION_TIMEOUT = 4     # Follow / Landing Phase 1 -> Waypoint
+    TARGET_LOST = 4           # Follow / Landing Phase 1 -> Waypoint: k sigma_xy > lost_radius
     CAUGHT_UP = 5             # Follow -> Landing Phase 1
     BELOW_P2_OFFSET = 6       # Landing Phase 1 -> Landing Phase 2
     BELOW_LANDED_OFFSET = 7   # Landing Phase 2 -> Landed
+    PREDICTED_MISS = 8        # Landing Phase 1 -> Follow: predicted miss over miss_limit
 
 
 # Output `mission_status`: mode (Mode); reason (Reason) and time [s] of the last transition; the
 # number of transitions so far; time of the first detection [s] (nan before); time of the target
-# estimate's last accepted measurement [s]; estimated horizontal distance to the target [m] (nan
-# without a valid target estimate).
+# estimate's last accepted measurement [s]; estimated horizontal distance to the target [m],
+# the target's horizontal position std now [m] and the predicted miss at touchdown [m] (nan while
+# the target is not tracked).
 MISSION_STATUS = VectorLayout("mission_status", [
     ("mode", 1), ("reason", 1), ("transition_time", 1), ("transitions", 1),
-    ("first_detection", 1), ("last_detection", 1), ("e_xy", 1)])
+    ("first_detection", 1), ("last_detection", 1), ("e_xy", 1), ("sigma_xy", 1),
+    ("predicted_miss", 1)])
 
 # Discrete state: the status fields above, then the reference, the filtered target reference and
 # the start position.
@@ -103,7 +146,8 @@ class LandingMission(LeafSystem):
         initial = np.zeros(_STATE.size)
         initial[_STATE.slice("first_detection")] = np.nan
         initial[_STATE.slice("last_detection")] = np.nan
-        initial[_STATE.slice("e_xy")] = np.nan
+        for name in ("e_xy", "sigma_xy", "predicted_miss"):
+            initial[_STATE.slice(name)] = np.nan
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         state = {self.xd_ticket()}
@@ -135,11 +179,20 @@ class LandingMission(LeafSystem):
         output.SetFromVector([float(airborne), float(airborne and lift_off)])
 
     def _detected(self, now: float, target: np.ndarray) -> bool:
+        """A fresh detection: the last accepted measurement younger than t_DetectionTimeOut."""
         last = TARGET_ESTIMATE.get(target, "last_measurement")
-        return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5 and np.isfinite(last)
-                    and now - last <= self._p.detection_timeout
-                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("p_WT")]))
-                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("v_WT")])))
+        return bool(self._tracked(target) and np.isfinite(last)
+                    and now - last <= self._p.detection_timeout)
+
+    def _tracked(self, target: np.ndarray) -> bool:
+        """A valid, finite target estimate whose horizontal position is known within lost_radius
+        at sigma_k standard deviations (the EKF predicting through a loss)."""
+        p = self._p
+        finite = np.all(np.isfinite(target[TARGET_ESTIMATE.slice("p_WT")])) and \
+            np.all(np.isfinite(target[TARGET_ESTIMATE.slice("v_WT")]))
+        return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5 and finite
+                    and np.isfinite(TARGET_ESTIMATE.get(target, "last_measurement"))
+                    and p.sigma_k * horizontal_sigma(target, 0.0, 0.0) <= p.lost_radius)
 
     def _update(self, context, discrete_state):
         p = self._p
@@ -149,20 +202,25 @@ class LandingMission(LeafSystem):
         p_B, v_B = STATE_ESTIMATE.get(estimate, "p_EB"), STATE_ESTIMATE.get(estimate, "v_EB")
         estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 and \
             np.all(np.isfinite(p_B)) and np.all(np.isfinite(v_B))
-        fresh = self._detected(now, target)
+        fresh, tracked = self._detected(now, target), self._tracked(target)
         p_T, v_T = TARGET_ESTIMATE.get(target, "p_WT"), TARGET_ESTIMATE.get(target, "v_WT")
         if fresh:
             x[_STATE.slice("last_detection")] = TARGET_ESTIMATE.get(target, "last_measurement")
             if np.isnan(_STATE.get(x, "first_detection")):
                 x[_STATE.slice("first_detection")] = now
-        else:
+        if not tracked:
             # No usable estimate now: continue on the last filtered target motion.
             v_T = _STATE.get(x, "v_filtered")
             p_T = _STATE.get(x, "p_filtered") + v_T * p.period - p.t_prediction * v_T
-        # t_CurrentTime - t_LastDetection > t_DetectionTimeOut: the target is not visible.
-        last = _STATE.get(x, "last_detection")
-        detected = bool(np.isfinite(last) and now - last <= p.detection_timeout)
-        x[_STATE.slice("e_xy")] = np.linalg.norm(p_B[:2] - p_T[:2]) if detected else np.nan
+        height = p_B[2] - p_T[2]
+        t_blind = time_to_touchdown(min(height, p.blind_height), p)
+        sigma_go = horizontal_sigma(target, t_blind, p.target_velocity_noise) \
+            if tracked else np.nan
+        e_xy = np.linalg.norm(p_B[:2] - p_T[:2]) if tracked else np.nan
+        x[_STATE.slice("e_xy")] = e_xy
+        x[_STATE.slice("sigma_xy")] = horizontal_sigma(target, 0.0, 0.0) if tracked else np.nan
+        x[_STATE.slice("predicted_miss")] = e_xy + p.sigma_k * sigma_go
+        certain = bool(p.sigma_k * sigma_go <= p.miss_limit)   # False when not tracked (nan)
         mode = Mode(int(_STATE.get(x, "mode")))
 
         def go(new_mode: Mode, reason: Reason):
@@ -179,14 +237,20 @@ class LandingMission(LeafSystem):
 
         def follow_target(descent_rate: float):
             """L Fig. 8 reference: filtered predicted target horizontally; the altitude held
-            (Follow) or descending toward the target (landing phases)."""
+            (Follow; climbing back to the waypoint's height after an abort) or descending toward
+            the target (landing phases)."""
             p_f, v_f = filter_reference(_STATE.get(x, "p_filtered"), _STATE.get(x, "v_filtered"),
                                         p_T, v_T, p.t_prediction, p.cutoff_position,
                                         p.cutoff_velocity, p.period)
             x[_STATE.slice("p_filtered")], x[_STATE.slice("v_filtered")] = p_f, v_f
-            z = _STATE.get(x, "p_ref")[2] - descent_rate * p.period
-            z = max(z, p_T[2] - 0.5)  # press onto the platform, not through it
-            set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], v_T[2] - descent_rate])
+            z_ref, ceiling = _STATE.get(x, "p_ref")[2], p.waypoint[2]
+            if descent_rate > 0.0 or z_ref >= ceiling:
+                z = max(z_ref - descent_rate * p.period, p_T[2] - 0.5)  # not through the plate
+                v_z = v_T[2] - descent_rate
+            else:   # climbing back to Follow's height after an abort
+                z = min(z_ref + p.climb_rate * p.period, ceiling)
+                v_z = v_T[2] + (p.climb_rate if z < ceiling else 0.0)
+            set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], v_z])
 
         def start_following():
             x[_STATE.slice("p_filtered")] = p_T + p.t_prediction * v_T
@@ -221,17 +285,22 @@ class LandingMission(LeafSystem):
                 start_following()
                 follow_target(0.0)
         elif mode in (Mode.FOLLOW, Mode.LANDING_P1):
-            if not detected:
-                go(Mode.WAYPOINT, Reason.DETECTION_TIMEOUT)
+            if not tracked:   # really lost: search from the waypoint (L Sec. 6.4)
+                go(Mode.WAYPOINT, Reason.TARGET_LOST)
                 set_reference(p.waypoint, np.zeros(3))
             elif mode == Mode.FOLLOW:
                 follow_target(0.0)
                 e_v = np.linalg.norm(v_B[:2] - v_T[:2])
-                if _STATE.get(x, "e_xy") <= p.position_threshold and e_v <= p.velocity_threshold:
+                at_height = _STATE.get(x, "p_ref")[2] >= p.waypoint[2]
+                if at_height and e_xy <= p.position_threshold and \
+                        e_v <= p.velocity_threshold and certain:
                     go(Mode.LANDING_P1, Reason.CAUGHT_UP)
             else:
                 follow_target(p.descending_p1)
-                if p_B[2] - p_T[2] <= p.landing_p2_offset:
+                miss = _STATE.get(x, "predicted_miss")
+                if not certain or (height <= p.landing_p2_offset and not miss <= p.miss_limit):
+                    go(Mode.FOLLOW, Reason.PREDICTED_MISS)   # abort before Phase 2 commits
+                elif height <= p.landing_p2_offset:
                     go(Mode.LANDING_P2, Reason.BELOW_P2_OFFSET)
         elif mode == Mode.LANDING_P2:
             follow_target(p.descending_p2)  # no timeout: lost close to the target, L Sec. 6.4
