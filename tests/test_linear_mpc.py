@@ -130,6 +130,9 @@ def test_daqp_eliminates_exact_penalty_slacks_only(slack_upper, eliminated):
     np.testing.assert_allclose(result.x, exact.GetSolution(prog.decision_variables()),
                                atol=2e-4)
     assert result.x[2] == pytest.approx(min(1.0, slack_upper), abs=2e-4)  # 3 apart wanted, 1 allowed
+    if eliminated:  # a penalty that stops being one is refused, not solved as a soft row
+        prog.linear_costs()[0].evaluator().UpdateCoefficients([-1.0])
+        assert not dut.solve().ok
 
 
 def test_daqp_reports_a_solve_cut_by_its_iteration_limit():

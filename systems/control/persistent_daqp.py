@@ -27,6 +27,7 @@ from alight.systems.control.program_qp import ProgramQp, QpResult
 
 OPTIMAL, SOFT_OPTIMAL = 1, 2  # DAQP exit flags: optimal, optimal with soft constraints violated
 PAIR_VIOLATED = -100          # our status: a shared slack's rows could both be violated
+NOT_A_PENALTY = -101          # our status: an eliminated slack's cost is no longer positive
 BIG = 1e30                    # DAQP's bound for "none"
 ACTIVE, IMMUTABLE, SOFT = 1, 4, 8  # DAQP constraint sense bits (an equality: active, immutable)
 SOFT_RHO = 1e6                # DAQP's reciprocal quadratic weight of a soft constraint's slack
@@ -147,6 +148,8 @@ class PersistentDaqp:
         if np.any(row_upper[self._pair_rows[0]] + row_upper[self._pair_rows[1]] < 0.0):
             return QpResult(False, np.full(n, np.nan), PAIR_VIOLATED, 0)
         q = self.qp.q()
+        if np.any(q[self._slack] <= 0.0):
+            return QpResult(False, np.full(n, np.nan), NOT_A_PENALTY, 0)
         self._set_soft_weights(q)
         upper_daqp, lower_daqp = self._daqp_bounds(lower, upper)
         self.solver.update(f=q[self._keep], bupper=upper_daqp, blower=lower_daqp)
