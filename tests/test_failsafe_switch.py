@@ -9,7 +9,7 @@ import pytest
 from pydrake.systems.analysis import Simulator
 
 from alight.diagrams.onboard.mpc_loop import load_failsafe_switch
-from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE
+from alight.systems.boundary import FC_COMMAND, FC_STATUS, STATE_ESTIMATE, ActiveMode
 from alight.systems.control.controller import ControllerReason, level_command, status_vector
 from alight.systems.managers.control_manager import MANAGER_STATUS, FailsafeCause, ManagerMode
 from alight.systems.managers.failsafe_switch import FailsafeSwitch
@@ -24,6 +24,10 @@ def spoiled(field: str, value: float) -> np.ndarray:
 
 
 
+def fc_status(mode: ActiveMode) -> np.ndarray:
+    return FC_STATUS.vector(armed=1.0, mode=mode, link_alive=1.0)
+
+
 class SwitchBench:
     """The failsafe switch as `dut` (threshold 5 m, step speed 1 m/s), flying: the controller
     issues hover thrust, the failsafe 0.9 of it."""
@@ -34,6 +38,7 @@ class SwitchBench:
         self.context = self.dut.CreateDefaultContext()
         self.simulator = Simulator(self.dut, self.context)
         self.set(state_estimate=falling(0.0), reference=reference(), arm=[1.0, 1.0],
+                 fc_status=fc_status(ActiveMode.ATTITUDE_THRUST),
                  **{"controller.controller_status": status_vector(ControllerReason.OK),
                     "controller.fc_command": self.hover(1.0),
                     "failsafe.fc_command": self.hover(0.9)})
@@ -70,7 +75,8 @@ class SwitchBench:
     ({"controller.fc_command": spoiled("stamp", np.inf)}, FailsafeCause.BAD_CONTROLLER),
     ({"controller.fc_command": spoiled("thrust", 1.5)}, FailsafeCause.BAD_CONTROLLER),
     ({"state_estimate": STATE_ESTIMATE.vector(p_EB=[5.1, 0.0, 5.0])},
-     FailsafeCause.CONTROL_ERROR)])
+     FailsafeCause.CONTROL_ERROR),
+    ({"fc_status": fc_status(ActiveMode.FAILSAFE_DESCENT)}, FailsafeCause.FLIGHT_CONTROLLER)])
 def test_every_cause_hands_over_at_the_tick_from_the_last_command_and_for_good(fault, cause):
     bench = SwitchBench()
     bench.run(0.1)
@@ -153,3 +159,21 @@ def test_an_unusable_failsafe_command_is_not_forwarded_either():
 def test_the_failsafe_tuning_is_one_file_for_every_stack():
     from alight.diagrams.onboard.controllers import load_controllers_config
     assert load_controllers_config().failsafe == load_failsafe_switch().failsafe
+
+
+def test_in_failsafe_the_mission_can_no_longer_disarm():
+    """Issue 21 fault campaign: the landing mission, not knowing the flight controller flew its own
+    failsafe after a link loss, judged itself landed from its estimate and disarmed 1.1 m up. The
+    switch's `arm` output is the mission's request until the hand-over, then [1, 1]: the failsafe
+    controller disarms itself once on the ground."""
+    bench = SwitchBench()
+    bench.run(0.1)
+    arm = lambda: list(bench.dut.GetOutputPort("arm").Eval(bench.context))
+    bench.set(arm=[1.0, 0.0])
+    assert arm() == [1.0, 0.0]                      # NORMAL: the mission's request
+    bench.set(arm=[1.0, 1.0], fc_status=fc_status(ActiveMode.FAILSAFE_DESCENT))
+    bench.run(0.01)
+    assert bench.status("mode") == ManagerMode.FAILSAFE
+    bench.set(arm=[0.0, 0.0])
+    bench.run(0.5)
+    assert arm() == [1.0, 1.0]

@@ -91,8 +91,9 @@ def add_mpc_control(builder, vehicle, reference_port, arm_port, mpc_params: Line
     builder.Connect(estimate, switch.GetInputPort("state_estimate"))
     builder.Connect(reference_port, switch.GetInputPort("reference"))
     builder.Connect(arm_port, switch.GetInputPort("arm"))
+    builder.Connect(vehicle.GetOutputPort("fc_status"), switch.GetInputPort("fc_status"))
     builder.Connect(switch.GetOutputPort("fc_command"), gate.GetInputPort("fc_command"))
-    builder.Connect(arm_port, gate.GetInputPort("arm"))
+    builder.Connect(switch.GetOutputPort("arm"), gate.GetInputPort("arm"))
     builder.Connect(issued, vehicle.GetInputPort("fc_command"))
     if hasattr(odometry, "connect_command"):  # e.g. the estimator bank's acceleration input
         odometry.connect_command(builder, issued)

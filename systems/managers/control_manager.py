@@ -97,6 +97,7 @@ class FailsafeCause(enum.IntEnum):
     BAD_ESTIMATE = 1
     BAD_CONTROLLER = 2   # valid = 0 on controller_status, or an unusable command
     CONTROL_ERROR = 3
+    FLIGHT_CONTROLLER = 4   # the flight controller flies its own failsafe (the failsafe switch)
 
 
 # `manager_status`: index of the active controller; ManagerMode; Refusal of the last refused goal

@@ -7,7 +7,12 @@ It hands over to the feedforward failsafe controller (M Sec. 5.10), as the contr
 - the controller reports `valid = 0` (its estimate, its solver), or its command is not usable:
   NaN or infinite anywhere, thrust out of [0, 1] (BAD_CONTROLLER, `controller_failed`);
 - a control error |p_ref - p_EB| over `failsafe_threshold` plus the step allowance
-  (CONTROL_ERROR). Without a tracker the mission steps its reference (a waypoint, the target at
+  (CONTROL_ERROR);
+- the flight controller flying its own failsafe descent (`fc_status` mode FAILSAFE_DESCENT: the
+  command link was lost, PX4's offboard loss), which no longer obeys the mission's commands
+  (FLIGHT_CONTROLLER). Found by the fault campaign (bench/faults.py): the landing mission, not
+  knowing, went on to Landing Phase 2 over the car it no longer followed and disarmed 1.1 m over
+  the ground (4.2 m/s impact, 281 N on a leg). Without a tracker the mission steps its reference (a waypoint, the target at
   its first detection), and a step is not an error: the part of each change of the reference that
   its own velocity does not explain is added to the allowance, which shrinks at `step_speed`;
   the reference the vehicle takes off to is a step from where it rests.
@@ -21,14 +26,17 @@ a function of the inputs and the switch's state at the tick, so `failsafe.active
 of the hand-over, the failsafe controller computes at that tick and reads, as `last_command`, the
 command issued last (the switch's output still forwards it until the update). The output never
 carries a command that is not usable: such a command is replaced by the last usable one (and the
-failsafe takes over at that tick).
+failsafe takes over at that tick). Its `arm` output is what the arm gate applies: the mission's
+request until the hand-over, then [1, 1]: the failsafe owns the vehicle until it has landed and
+disarms itself (a mission that judges itself landed from its estimate cannot disarm it in the
+air).
 """
 import dataclasses as dc
 
 import numpy as np
 
-from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
-                                     VectorLayout, estimate_is_valid)
+from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, FC_STATUS, REFERENCE,
+                                     STATE_ESTIMATE, ActiveMode, VectorLayout, estimate_is_valid)
 from alight.systems.control.controller import command_is_usable, controller_failed
 from alight.systems.control.failsafe import FailsafeParams
 from alight.systems.managers.control_manager import (MANAGER_STATUS, CommandSwitch,
@@ -53,12 +61,14 @@ _MODE, _FAILSAFE = _STATE.slice("mode").start, float(ManagerMode.FAILSAFE)
 
 class FailsafeSwitch(CommandSwitch):
     """Inputs  `state_estimate` STATE_ESTIMATE; `reference` REFERENCE (what the controller
-            follows); `arm` (2) the mission's [arm, thrust enable]; `controller.fc_command`
+            follows); `arm` (2) the mission's [arm, thrust enable]; `fc_status` FC_STATUS of the
+            vehicle; `controller.fc_command`
             FC_COMMAND and `controller.controller_status` CONTROLLER_STATUS of the controller;
             `failsafe.fc_command` FC_COMMAND of the failsafe controller
     Outputs `fc_command` FC_COMMAND (the controller's, from the hand-over the failsafe's; never
             unusable: the vehicle's command and both controllers' `last_command`);
-            `controller.active`, `failsafe.active` (1); `manager_status` MANAGER_STATUS (active
+            `controller.active`, `failsafe.active` (1); `arm` (2) for the arm gate (the
+            mission's request, [1, 1] once in FAILSAFE); `manager_status` MANAGER_STATUS (active
             0 controller / 1 failsafe, mode NORMAL / FAILSAFE, failsafe_cause, control_error,
             switches)
     Updated every `period`.
@@ -70,6 +80,7 @@ class FailsafeSwitch(CommandSwitch):
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
         self._arm = self.DeclareVectorInputPort("arm", 2)
+        self._fc_status = self.DeclareVectorInputPort("fc_status", FC_STATUS.size)
         self._commands = [self.DeclareVectorInputPort(f"{name}.fc_command", FC_COMMAND.size)
                           for name in ("controller", "failsafe")]
         self._status = self.DeclareVectorInputPort("controller.controller_status",
@@ -82,6 +93,11 @@ class FailsafeSwitch(CommandSwitch):
             self.DeclareVectorOutputPort(
                 f"{name}.active", 1, lambda context, output, index=index: output.SetFromVector(
                     [float(self._failsafe_after(context) == index)]), everything)
+        self.DeclareVectorOutputPort(
+            "arm", 2, lambda context, output: output.SetFromVector(
+                [1.0, 1.0] if self._in_failsafe(context.get_discrete_state(self._state)
+                                                .get_value()) else self._arm.Eval(context)),
+            {self.all_input_ports_ticket(), self.all_state_ticket()})
         self.DeclareVectorOutputPort("manager_status", MANAGER_STATUS.size, self._calc_status,
                                      {self.all_state_ticket()})
 
@@ -143,6 +159,9 @@ class FailsafeSwitch(CommandSwitch):
             cause = FailsafeCause.BAD_CONTROLLER
         elif not error <= self._p.failsafe_threshold + S.get(x, "allowance"):
             cause = FailsafeCause.CONTROL_ERROR
+        elif FC_STATUS.get(self._fc_status.Eval(context), "mode") \
+                == ActiveMode.FAILSAFE_DESCENT:
+            cause = FailsafeCause.FLIGHT_CONTROLLER
         if cause != FailsafeCause.NONE:
             x[S.slice("mode")] = ManagerMode.FAILSAFE
             x[S.slice("failsafe_cause")] = cause
