@@ -55,6 +55,9 @@ class PersistentDaqp:
         self._slack = np.zeros(n, bool)
         self._slack[list(slack_rows)] = True
         self._keep = np.flatnonzero(~self._slack)
+        self._slack_index = np.flatnonzero(self._slack)
+        # DAQP's bounds: the kept variables' simple bounds, then the general rows'
+        self._daqp_index = np.concatenate([self._keep, n + np.arange(len(self._general_rows))])
         G = self.qp.A[self._general_rows]
         row_slack = np.full(len(G), -1)
         for slack, rows in slack_rows.items():
@@ -109,7 +112,7 @@ class PersistentDaqp:
 
     def _set_soft_weights(self, q: np.ndarray) -> None:
         """The soft rows' linear weights from their slacks' costs (when these changed)."""
-        weights = q[self._slack]
+        weights = q[self._slack_index]
         if self._weights is not None and np.array_equal(weights, self._weights):
             return
         self._weights = weights
@@ -135,9 +138,7 @@ class PersistentDaqp:
 
     def _daqp_bounds(self, lower, upper) -> tuple[np.ndarray, np.ndarray]:
         """DAQP's: the kept variables' simple bounds, then the general rows'."""
-        n = self.qp.num_vars
-        return (np.concatenate([upper[self._keep], upper[n:]]),
-                np.concatenate([lower[self._keep], lower[n:]]))
+        return upper[self._daqp_index], lower[self._daqp_index]
 
     def solve(self) -> QpResult:
         """Solves with the program's current linear cost terms and bounds, from the previous
@@ -145,10 +146,11 @@ class PersistentDaqp:
         lower, upper = self._all_bounds()
         n = self.qp.num_vars
         row_upper = upper[n:]
-        if np.any(row_upper[self._pair_rows[0]] + row_upper[self._pair_rows[1]] < 0.0):
+        if len(self._pair_rows[0]) and \
+                (row_upper[self._pair_rows[0]] + row_upper[self._pair_rows[1]]).min() < 0.0:
             return QpResult(False, np.full(n, np.nan), PAIR_VIOLATED, 0)
         q = self.qp.q()
-        if np.any(q[self._slack] <= 0.0):
+        if len(self._slack_index) and q[self._slack_index].min() <= 0.0:
             return QpResult(False, np.full(n, np.nan), NOT_A_PENALTY, 0)
         self._set_soft_weights(q)
         upper_daqp, lower_daqp = self._daqp_bounds(lower, upper)

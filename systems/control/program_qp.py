@@ -56,7 +56,11 @@ class ProgramQp:
             box_variable.append(variables if is_box else np.full(len(dense), -1))
         self.A = np.vstack(rows) if rows else np.zeros((0, n))
         ends = np.cumsum([len(block) for block in rows]).tolist()
-        self._row_slices = [slice(end - len(block), end) for end, block in zip(ends, rows)]
+        # (evaluator, rows of A): an evaluator is updated in place, so it is looked up once
+        self._bounded = [(binding.evaluator(), slice(end - len(block), end))
+                         for binding, end, block in zip(self._constraints, ends, rows)]
+        self._quadratic = [(binding.evaluator(), index) for binding, index in self._quadratic]
+        self._linear = [(binding.evaluator(), index) for binding, index in self._linear]
         self.box_variable = np.concatenate(box_variable).astype(int) if rows \
             else np.zeros(0, int)
 
@@ -71,16 +75,15 @@ class ProgramQp:
     def q(self) -> np.ndarray:
         """The linear cost term, sum of the quadratic costs' b and the linear costs' a."""
         q = np.zeros(self.num_vars)
-        for binding, index in self._quadratic:
-            q[index] += binding.evaluator().b()
-        for binding, index in self._linear:
-            q[index] += binding.evaluator().a()
+        for evaluator, index in self._quadratic:
+            q[index] += evaluator.b()
+        for evaluator, index in self._linear:
+            q[index] += evaluator.a()
         return q
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """l and u of the rows of A (+-inf where unbounded)."""
         lower, upper = np.empty(len(self.A)), np.empty(len(self.A))
-        for binding, rows in zip(self._constraints, self._row_slices):
-            evaluator = binding.evaluator()
+        for evaluator, rows in self._bounded:
             lower[rows], upper[rows] = evaluator.lower_bound(), evaluator.upper_bound()
         return lower, upper
