@@ -2,6 +2,7 @@
 the simulated PX4's EKF2 emulation fusing external vision, its Hold / offboard-loss rules, and
 the MAVLink vehicle sending the onboard estimate."""
 import math
+import os
 import threading
 import time
 
@@ -557,8 +558,9 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
 def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     """`alight hil --mission land` sends its target EKF's estimate as LANDING_TARGET; the
     simulated autopilot (a pymavlink receiver) logs each one PX4 would use (LOCAL_NED,
-    position_valid): at 20 Hz while the EKF tracks, each the EKF's estimate at its stamp, and
-    (printed) how the target relative to the vehicle compares with the truth."""
+    position_valid): at 20 Hz while the EKF tracks, each the EKF's estimate at its stamp,
+    within the EKF's covariance of the true target relative to the vehicle (skipped, with the
+    figures, when the onboard side lagged the autopilot: the messages' age tells)."""
     scenario = ("--scenario", "scenario_field_hil.yaml", "--target-speed", "2")
     status, text, sim, onboard = fly_hil(tmp_path, ("--mission", "land", *scenario),
                                          (*scenario, "--seed", "0"), duration=60.0)
@@ -583,8 +585,9 @@ def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     assert logged.sum() > 0.5 * len(t) > 20 * 3 * 0.5  # seconds of tracking at 20 Hz
     assert gap.max() < 1e-4  # float32 on the wire
     assert len(t) / np.ptp(t) > 15.0
-    # Against the truth (printed, not asserted: on a loaded machine the onboard side lags the
-    # autopilot and its EKF sees frames late; the message carries the EKF, checked above)
+    # Against the truth: the target relative to the vehicle (the EKF's minus the vehicle's
+    # estimate, 1 mm mocap) within 3 std of the EKF's own covariance, + 1 cm for the clock
+    # offset's and the stamp pairing's error
     truth = sim["ground_truth"]
     std = np.sqrt(np.column_stack([np.interp(t, stamps, target[f"var_p_{i}"])
                                    for i in range(3)]))
@@ -592,9 +595,20 @@ def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     p_EB = np.column_stack([np.interp(t - offset, estimate["stamp"], estimate[f"p_EB_{i}"])
                             for i in range(3)])
     error = (p_WT - p_EB) - (true_at(truth, t, "p_WT") - true_at(truth, t, "p_WB"))
-    print(f"relative to the vehicle vs truth: p50 "
-          f"{np.median(np.linalg.norm(error, axis=1)):.3f} m, "
-          f"{100 * np.mean(np.all(np.abs(error) < 3 * std + 0.01, axis=1)):.0f} % within 3 std")
+    median = np.median(np.linalg.norm(error, axis=1))
+    within = np.mean(np.all(np.abs(error) < 3 * std + 0.01, axis=1))
+    # How late each message was used: the autopilot's time at reception minus the estimate's.
+    # An onboard side that keeps up sends within a tick (measured p90 25 ms, max 37 ms);
+    # one that lags the autopilot (a loaded machine) tracks frames late and its errors grow.
+    age = np.percentile(received["stamp"].to_numpy() - t, 90)
+    print(f"relative to the vehicle vs truth: p50 {median:.3f} m, {100 * within:.0f} % within "
+          f"3 std; message age p90 {1e3 * age:.0f} ms")
+    if age > 0.05:  # measured: 3.5 s of age gave 0.39 m p50, 43 % within 3 std
+        pytest.skip(f"the onboard side lagged the autopilot (LANDING_TARGET age p90 "
+                    f"{1e3 * age:.0f} ms > 50 ms, load {os.getloadavg()[0]:.0f}): accuracy "
+                    f"against the truth not judged (p50 {median:.3f} m, {100 * within:.0f} % "
+                    f"within 3 std)")
+    assert median < 0.06 and within > 0.85
 
 
 # --- the MAVLink vehicle's ODOMETRY ---------------------------------------------------------
