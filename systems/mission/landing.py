@@ -5,10 +5,11 @@ landing is predicted to miss (beyond the paper, its future work, L Sec. 8; docs/
 
 Target loss as a tracker handles it: the target estimate (the target EKF, L(5)-(8)) is its
 constant-velocity prediction with a covariance that grows while no measurement comes. The target
-is *tracked* while the estimate is valid and its predicted horizontal position is known within
-`lost_radius` at `sigma_k` standard deviations (k sigma_xy, sigma_xy^2 = var_x + var_y); during a
-short loss the mission keeps pursuing the predicted position and the detector searches around it.
-Only a target no longer tracked is lost (L's fixed t_DetectionTimeOut only starts the pursuit).
+is *tracked* while seen (a fresh detection) or while the estimate is valid and its predicted
+horizontal position is known within `lost_radius` at `sigma_k` standard deviations (k sigma_xy,
+sigma_xy^2 = var_x + var_y); during a short loss the mission keeps pursuing the predicted
+position and the detector searches around it. Only a target no longer tracked is lost (L's fixed
+t_DetectionTimeOut only gates the first Follow).
 
 Predicted miss at touchdown: |e_xy| (the horizontal tracking error now) + k sigma_xy(t_blind), the
 target's horizontal position uncertainty propagated over the blind end of the descent (from
@@ -178,21 +179,27 @@ class LandingMission(LeafSystem):
             + self._p.arm_time or mode != Mode.TAKING_OFF
         output.SetFromVector([float(airborne), float(airborne and lift_off)])
 
+    def _usable(self, target: np.ndarray) -> bool:
+        """A valid, finite target estimate that has had a measurement."""
+        return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5
+                    and np.isfinite(TARGET_ESTIMATE.get(target, "last_measurement"))
+                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("p_WT")]))
+                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("v_WT")])))
+
     def _detected(self, now: float, target: np.ndarray) -> bool:
         """A fresh detection: the last accepted measurement younger than t_DetectionTimeOut."""
-        last = TARGET_ESTIMATE.get(target, "last_measurement")
-        return bool(self._tracked(target) and np.isfinite(last)
-                    and now - last <= self._p.detection_timeout)
+        return self._usable(target) and \
+            now - TARGET_ESTIMATE.get(target, "last_measurement") <= self._p.detection_timeout
 
-    def _tracked(self, target: np.ndarray) -> bool:
-        """A valid, finite target estimate whose horizontal position is known within lost_radius
-        at sigma_k standard deviations (the EKF predicting through a loss)."""
+    def _tracked(self, now: float, target: np.ndarray) -> bool:
+        """Seen (a fresh detection), or predicted by the EKF through a loss with the horizontal
+        position known within lost_radius at sigma_k standard deviations. (A fresh detection
+        counts whatever the covariance: a re-initialized EKF's velocity is uncertain for a few
+        frames, its position is not.)"""
         p = self._p
-        finite = np.all(np.isfinite(target[TARGET_ESTIMATE.slice("p_WT")])) and \
-            np.all(np.isfinite(target[TARGET_ESTIMATE.slice("v_WT")]))
-        return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5 and finite
-                    and np.isfinite(TARGET_ESTIMATE.get(target, "last_measurement"))
-                    and p.sigma_k * horizontal_sigma(target, 0.0, 0.0) <= p.lost_radius)
+        return self._detected(now, target) or (
+            self._usable(target)
+            and p.sigma_k * horizontal_sigma(target, 0.0, 0.0) <= p.lost_radius)
 
     def _update(self, context, discrete_state):
         p = self._p
@@ -202,7 +209,7 @@ class LandingMission(LeafSystem):
         p_B, v_B = STATE_ESTIMATE.get(estimate, "p_EB"), STATE_ESTIMATE.get(estimate, "v_EB")
         estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 and \
             np.all(np.isfinite(p_B)) and np.all(np.isfinite(v_B))
-        fresh, tracked = self._detected(now, target), self._tracked(target)
+        fresh, tracked = self._detected(now, target), self._tracked(now, target)
         p_T, v_T = TARGET_ESTIMATE.get(target, "p_WT"), TARGET_ESTIMATE.get(target, "v_WT")
         if fresh:
             x[_STATE.slice("last_detection")] = TARGET_ESTIMATE.get(target, "last_measurement")
