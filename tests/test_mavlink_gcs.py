@@ -16,6 +16,9 @@ from mavsdk.plugins.param import Param, ParamError
 from mavsdk.plugins.telemetry import FlightMode, Telemetry
 from pymavlink.dialects.v20 import common as mavlink
 
+from alight.diagrams.cli import main
+from alight.diagrams.cli.hil import local_autopilot
+from alight.diagrams.scenario import load_scenario
 from alight.hw import px4
 from alight.hw.autopilot_rules import AutopilotRules
 from alight.hw.ground_station import INT32, REAL32, GroundStationService, emulated_parameters
@@ -263,3 +266,28 @@ def test_a_ground_station_link_beside_the_companion_link(tmp_path):
         assert server.stop() == 0, "".join(server.output)
     statistics = json.loads(server.stats.read_text())
     assert statistics["gcs_link"]["messages_v1"] >= 4 and statistics["link"]["messages_v1"] == 0
+
+
+@pytest.mark.mission
+def test_hil_local_passes_the_ground_station_link_on(tmp_path):
+    """`alight hil --local --gcs URL` starts its simulated autopilot with that second link: a
+    ground station there (MAVLink 1) starts the simulation and gets the PX4 HEARTBEAT."""
+    gcs_port = free_udp_port()
+    with local_autopilot(load_scenario("hover"), 1.0, str(tmp_path / "run"),
+                         gcs=f"udp:127.0.0.1:{gcs_port}"):
+        gcs = UdpClient(gcs_port, 255, 190, mavlink1=True)
+        try:
+            gcs.send(gcs.mav.heartbeat_encode(mavlink.MAV_TYPE_GCS,
+                                              mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+            heartbeats = [(v, m) for v, m in gcs.receive(3.0) if m.get_type() == "HEARTBEAT"]
+        finally:
+            gcs.close()
+    assert heartbeats and {v for v, _ in heartbeats} == {1}
+    assert {m.autopilot for _, m in heartbeats} == {mavlink.MAV_AUTOPILOT_PX4}
+    assert json.loads((tmp_path / "run-sim-autopilot" / "metadata.json").read_text())["gcs"] \
+        == f"udp:127.0.0.1:{gcs_port}"
+
+
+def test_hil_gcs_needs_local(capsys):
+    assert main(["hil", "--connect", "udp:127.0.0.1:9", "--gcs", "udp:127.0.0.1:14550"]) == 2
+    assert "--gcs goes with --local" in capsys.readouterr().err
