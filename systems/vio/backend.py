@@ -36,7 +36,7 @@ class BackendParams:
     initial_gyro_bias_std: float = bounded(0.005, 1e-6, 1.0, "rad/s")
     max_speed: float = bounded(40.0, 1.0, 1000.0, "m/s")          # beyond: the solution diverged
     # landmarks one keyframe observes in the window, at most (the bound on the back end's work)
-    max_landmarks: int = bounded(80, 4, 10000)
+    max_landmarks: int = bounded(110, 4, 10000)
 
 
 @dc.dataclass
