@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
 from mavsdk.plugins.action import Action
+from mavsdk.plugins.mission_raw import MissionRaw
 from mavsdk.plugins.offboard import Attitude, Offboard
+from mavsdk.plugins.param import Param
 from mavsdk.plugins.telemetry import FlightMode as MavsdkMode, Telemetry
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
@@ -346,8 +348,9 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
 def test_mavsdk_on_the_ground_station_link_follows_a_hil_flight(tmp_path):
     """`alight hil --mission fly` flies over the companion link and forwards its estimate as
     ODOMETRY; a MAVSDK client (a ground station) on the autopilot's second link (`--gcs`) reads
-    `position_velocity_ned`, which follows the ground truth within the odometry noise EKF2
-    assumes (0.1 m), plus the pairing of each position with the latest attitude time."""
+    a parameter and the (empty) mission during the flight, and `position_velocity_ned`, which
+    follows the ground truth within the odometry noise EKF2 assumes (0.1 m), plus the pairing of
+    each position with the latest attitude time."""
     port, gcs_port = free_udp_port(), free_udp_port()
     hil = HilProcess(port, ("--mission", "fly", "--waypoints", "0,0,1.5; 1,0,1.5",
                             "--run-dir", str(tmp_path / "hil")))
@@ -364,6 +367,10 @@ def test_mavsdk_on_the_ground_station_link_follows_a_hil_flight(tmp_path):
         telemetry.subscribe_attitude_quaternion(lambda q, _: seen["attitude"].append(q))
         telemetry.subscribe_position_velocity_ned(lambda pv, _: seen["position"].append(
             (seen["attitude"][-1].timestamp_us * 1e-6 if seen["attitude"] else math.nan, pv)))
+        # The ground station's parameter and mission requests answered during the flight
+        wait_for(lambda: len(seen["position"]) > 30, 30.0, "positions")
+        assert Param(system).get_param_float("MPC_THR_HOVER") == pytest.approx(0.637)
+        assert MissionRaw(system).download_mission() == []
         status = hil.wait(150.0)
     finally:
         mavsdk.destroy()
