@@ -144,9 +144,9 @@ class StreamRecorder(LeafSystem):
             pickle.dump(streams, f, protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def record(scenario, duration: float, folder: Path) -> None:
+def record(scenario, duration: float, folder: Path):
     """Flies `scenario` for `duration` s (its stack closed loop on the simulated vehicle) and
-    records the vehicle's boundary outputs into `folder`."""
+    records the vehicle's boundary outputs into `folder`; returns the flown stack."""
     builder = DiagramBuilder()
     stack = build(builder, scenario)
     vehicle = builder.GetSubsystemByName("vehicle")
@@ -158,6 +158,7 @@ def record(scenario, duration: float, folder: Path) -> None:
     recorder.save(simulator.get_context().get_time())
     (folder / "scenario.yaml").write_text(dump_scenario(scenario))
     (folder / "complete").write_text("1\n")
+    return stack
 
 
 # --- replay -------------------------------------------------------------------------------------
@@ -198,16 +199,19 @@ class RecordedVehicle(LeafSystem):
         self._cache = {name: (-1, CameraFrame()) for name in FRAMES}
         self.reader_seconds = 0.0
         self.DeclareVectorInputPort("fc_command", FC_COMMAND.size)
+        time_only = {self.time_ticket()}   # the outputs depend on time, not on the command
         self.DeclareAbstractOutputPort("imu", lambda: AbstractValue.Make(ImuSamples.empty()),
-                                       self._imu)
+                                       self._imu, prerequisites_of_calc=time_only)
         for name, layout in VECTORS.items():
             self.DeclareVectorOutputPort(name, layout.size,
                                          lambda context, output, name=name:
-                                         self._vector(name, context, output))
+                                         self._vector(name, context, output),
+                                         prerequisites_of_calc=time_only)
         for name in FRAMES:
             self.DeclareAbstractOutputPort(name, lambda: AbstractValue.Make(CameraFrame()),
                                            lambda context, output, name=name:
-                                           self._frame(name, context, output))
+                                           self._frame(name, context, output),
+                                           prerequisites_of_calc=time_only)
 
     def _imu(self, context, output):
         k = _index(self._rec.times["imu"], context.get_time())
