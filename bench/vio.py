@@ -46,7 +46,8 @@ def main() -> None:
             wall = time.perf_counter() - start
             print(f"{source:10s} {seed:4d} {r['travelled']:7.1f} {r['ate_rmse']:7.3f} "
                   f"{r['rpe_per_m']:7.4f} {r['final_drift']:7.4f} {r['frontend_ms']:8.2f} "
-                  f"{r['backend_ms']:8.1f} {p99:8.1f} {r['backend_max_ms']:8.1f} {r['restarts']:8d} "
+                  f"{r['backend_ms']:8.1f} {p99:8.1f} {r['backend_max_ms']:8.1f} "
+                  f"{r['restarts']:8d} "
                   f"{wall:7.1f}", flush=True)
 
 

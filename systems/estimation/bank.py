@@ -317,7 +317,7 @@ class EstimatorBank(LeafSystem):
         if s.on_ground:
             u_o = np.array([u_o[0], u_o[1], max(u_o[2], 0.0)])
         kfs = s.filters
-        angle = kfs.eta[:, 0] - s.eta_o   # each filter's input in its own frame: Rz(eta - eta_o) u_o
+        angle = kfs.eta[:, 0] - s.eta_o   # each filter's input in its frame: Rz(eta - eta_o) u_o
         c, sn = np.cos(angle), np.sin(angle)
         u = np.stack([c * u_o[0] - sn * u_o[1], sn * u_o[0] + c * u_o[1],
                       np.full(len(angle), u_o[2])], axis=1)
