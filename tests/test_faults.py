@@ -2,7 +2,7 @@
 representative faults injected through the scenario into seeded flights of the direct stacks,
 each judged from ground truth and contacts (diagrams/analysis/faults.py) with no unsafe outcome
 and the outcome the stack should reach; and the judge itself flags what is unsafe.
-About 40 CPU s in all (each waypoint flight 4-6 s, the landing about 15 s)."""
+About 50 CPU s in all (each waypoint flight 4-6 s, the landing about 15 s)."""
 import pytest
 
 from alight.diagrams.analysis.faults import (FAILSAFE_LANDING, FLYAWAY, LANDED, UNSAFE,
@@ -35,10 +35,15 @@ def _cause(log) -> FailsafeCause:
     # (it stayed armed at 95 % of hover thrust before the campaign found it).
     ([f"faults.estimate: {{loss: true, loss_time: {FAULT_TIME}, loss_duration: 10.0}}"],
      FAILSAFE_LANDING, FailsafeCause.BAD_ESTIMATE),
+    # The command link lost 2 s: the flight controller's own failsafe descent; the switch takes
+    # over and the mission can no longer disarm (a landing disarmed 1.1 m up before 6b356f5).
+    ([f"vehicle.link_losses: [[{FAULT_TIME}, {FAULT_TIME + 2.0}]]"], FAILSAFE_LANDING,
+     FailsafeCause.FLIGHT_CONTROLLER),
     # A rotor at 70 % thrust: the flight controller's mixer flies on, the plan is flown.
     ([f"vehicle.motor_fault: {{loss: 0.3, rotor: 0, time: {FAULT_TIME}}}"], LANDED,
      FailsafeCause.NONE),
-], ids=["nan_commands", "out_of_range_commands", "estimate_lost_10s", "motor_30pc"])
+], ids=["nan_commands", "out_of_range_commands", "estimate_lost_10s", "link_lost_2s",
+        "motor_30pc"])
 def test_waypoint_flight_fault_is_safe(overrides, outcome, cause, tmp_path):
     log, judged = fly("waypoints", overrides, tmp_path)
     assert judged.outcome == outcome, judged
