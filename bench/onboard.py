@@ -2,7 +2,8 @@
 replays them through the onboard diagram alone and prints what each component costs.
 
 1. Record (once per scenario, duration and sensing; reused when present): the scenario's
-   simulated vehicle flies its landing with its own onboard stack (closed loop), and every
+   simulated vehicle flies its landing with its own onboard stack (closed loop; `--duration` s or
+   until the stack's stop condition, landed and settled), and every
    boundary output the stack reads is recorded as it changes: `imu`, `fc_attitude`,
    `fc_status`, the forward RGB-D frames (`rgbd`) and the down-camera frames (`down_image`),
    plus `ground_truth` for scoring only. The recording lives outside the repository, under
