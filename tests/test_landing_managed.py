@@ -74,7 +74,8 @@ def _requests_at(dut, mode: Mode, transitions: int, arm=(1.0, 1.0)):
     context = dut.CreateDefaultContext()
     dut.GetInputPort("mission_status").FixValue(context, MISSION_STATUS.pack(
         mode=mode, reason=0, transition_time=0.0, transitions=transitions,
-        first_detection=np.nan, last_detection=np.nan, e_xy=np.nan))
+        first_detection=np.nan, last_detection=np.nan, e_xy=np.nan, sigma_xy=np.nan,
+        predicted_miss=np.nan))
     dut.GetInputPort("arm").FixValue(context, list(arm))
     return {port: dut.GetOutputPort(port).Eval(context) for port in
             ("tracker_request", "trajectory_goal", "landoff_goal", "target_goal")}
