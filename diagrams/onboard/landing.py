@@ -13,6 +13,7 @@ from alight.diagrams.running.simulation import DisarmedAfter, evaluate
 from alight.systems.boundary import TARGET_ESTIMATE
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpcParams
+from alight.systems.control.touchdown_level import TouchdownLevel, TouchdownLevelParams
 from alight.systems.managers.control_manager import gave_up
 from alight.systems.managers.failsafe_switch import FailsafeSwitchParams
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
@@ -70,19 +71,33 @@ def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: L
 def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
                         mpc_params: LinearMpcParams, model: LinearModelParams, odometry,
                         perception: TargetEstimatorParams, fallback: FailsafeSwitchParams,
-                        camera_blackouts=(), command_filter=None) -> LandingOnboard:
+                        camera_blackouts=(), command_filter=None,
+                        touchdown: TouchdownLevelParams = TouchdownLevelParams()
+                        ) -> LandingOnboard:
     """The onboard landing stack on `vehicle`'s boundary ports (the simulated or the MAVLink
     vehicle): the mission state machine L Sec. 6.4 with its reference L Sec. 6.3, `odometry` and
-    the linear MPC with its `fallback` to the failsafe (`add_mpc_control`), target perception
-    `perception` on `down_image` (with `camera_blackouts`) and the run logging;
-    `command_filter` as in `add_mpc_control` (fault injection)."""
+    the linear MPC with its `fallback` to the failsafe (`add_mpc_control`), its command levelled
+    for the `touchdown` (TouchdownLevel), target perception `perception` on `down_image` (with
+    `camera_blackouts`) and the run logging; `command_filter` as in `add_mpc_control` (fault
+    injection, before the levelling)."""
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
+    level = builder.AddNamedSystem("touchdown_level", TouchdownLevel(touchdown))
+
+    def levelled(builder, command):
+        if command_filter is not None:
+            command = command_filter(builder, command)
+        builder.Connect(command, level.GetInputPort("fc_command"))
+        return level.GetOutputPort("fc_command")
+
     loop = add_mpc_control(builder, vehicle, mission.GetOutputPort("reference"),
                            mission.GetOutputPort("arm"), odometry=odometry,
                            mpc_params=mpc_params, model=model, fallback=fallback,
-                           command_filter=command_filter)
+                           command_filter=levelled)
     ports = add_down_camera_perception(builder, vehicle, loop.state_estimate_port, perception,
                                        camera_blackouts)
+    builder.Connect(mission.GetOutputPort("mission_status"), level.GetInputPort("mission_status"))
+    builder.Connect(loop.state_estimate_port, level.GetInputPort("state_estimate"))
+    builder.Connect(ports.target_estimate, level.GetInputPort("target_estimate"))
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))
     builder.Connect(ports.target_estimate, mission.GetInputPort("target_estimate"))
     loggers = add_mpc_logging(builder, loop, mission.GetOutputPort("reference"))

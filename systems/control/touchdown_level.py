@@ -1,0 +1,73 @@
+"""Level touchdown: the attitude command made level for the last decimetres of Landing Phase 2.
+
+L Sec. 6.4 descends in Phase 2 at 1.8 m/s (L Table 2) and switches the motors off at
+z_SuccessfulLandingOffset, i.e. at the touchdown; the MPC (L Sec. 6.2) meanwhile holds the
+vehicle against the air flowing over the moving platform, tilted by atan(drag / weight): 12 deg in
+7 m/s of relative air (car 3 m/s, wind 15 km/h). Touching down at that tilt puts the whole impact
+on the upwind legs: their off-centre impulse spins the light airframe (I_xx 0.042 kg m^2, legs
+0.21 m out) through level and, disarmed, it tips over (docs/landing.md "Touchdown attitude").
+Levelled for the last `height` above the platform (a few tenths of a second at 1.8 m/s, the
+attitude loop's response), the four legs meet the platform together; the drift that the wind
+adds meanwhile (drag / mass ~2 m/s^2) is a few centimetres.
+"""
+import dataclasses as dc
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.mission.landing import MISSION_STATUS, Mode
+from alight.systems.params import bounded
+from alight.systems.rotations import heading, heading_quaternion, rotation_matrix
+
+
+@dc.dataclass
+class TouchdownLevelParams:
+    # CoM above the platform [m] under which Phase 2's attitude command is level: the legs reach
+    # 0.22 m below the CoM (hexacopter_f550.sdf), 1.8 m/s covers the 0.3 m left in 0.17 s, about
+    # the time the attitude loop takes to take out 12 deg. 0 turns the levelling off.
+    height: float = bounded(1.0, 0.0, 5.0, "m")
+
+
+def level_command(command: np.ndarray) -> np.ndarray:
+    """`command` (FC_COMMAND) with its attitude level at its own heading, no feed-forward rate;
+    thrust, mode and arm unchanged."""
+    levelled = np.array(command, dtype=float)
+    q_WD = FC_COMMAND.get(command, "q_WD")
+    levelled[FC_COMMAND.slice("q_WD")] = heading_quaternion(heading(rotation_matrix(q_WD)))
+    levelled[FC_COMMAND.slice("w_D")] = 0.0
+    return levelled
+
+
+class TouchdownLevel(LeafSystem):
+    """Input  `fc_command`      FC_COMMAND from the controller
+    Input  `mission_status`  MISSION_STATUS (its `mode`)
+    Input  `state_estimate`  STATE_ESTIMATE (p_EB [m])
+    Input  `target_estimate` TARGET_ESTIMATE (p_WT [m], `valid`)
+    Output `fc_command`      the command, levelled (`level_command`) in Landing Phase 2 and
+                             Landed while the CoM is under `height` above the target; otherwise
+                             unchanged (direct feed-through)
+    """
+
+    def __init__(self, params: TouchdownLevelParams):
+        super().__init__()
+        self._height = params.height
+        self._command = self.DeclareVectorInputPort("fc_command", FC_COMMAND.size)
+        self._status = self.DeclareVectorInputPort("mission_status", MISSION_STATUS.size)
+        self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
+        self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc)
+
+    def levelling(self, context) -> bool:
+        """Whether the command is levelled now."""
+        mode = MISSION_STATUS.get(self._status.Eval(context), "mode")
+        if mode not in (Mode.LANDING_P2, Mode.LANDED):
+            return False
+        target = self._target.Eval(context)
+        height = (STATE_ESTIMATE.get(self._estimate.Eval(context), "p_EB")[2]
+                  - TARGET_ESTIMATE.get(target, "p_WT")[2])
+        return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5) and height <= self._height
+
+    def _calc(self, context, output):
+        command = self._command.Eval(context)
+        output.SetFromVector(level_command(command) if self.levelling(context) else command)
