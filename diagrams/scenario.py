@@ -26,6 +26,7 @@ from alight.models import model_path
 from alight.systems.control.linear_model import LinearModelParams
 from alight.systems.control.linear_mpc import LinearMpcParams
 from alight.systems.control.scripted_pilot import PilotProfile
+from alight.systems.control.touchdown_level import TouchdownLevelParams
 from alight.systems.managers.failsafe_switch import FailsafeSwitchParams
 from alight.systems.estimation.bank import BankParams, check_bank
 from alight.systems.mission.landing import LandingMissionParams
@@ -72,6 +73,8 @@ class Onboard:
     failsafe_switch: FailsafeSwitchParams = param_file(FailsafeSwitchParams,
                                                        "failsafe_switch.yaml")
     mocap: MocapParams = dc.field(default_factory=MocapParams)
+    # landing: the MPC's attitude command levelled for the touchdown (height 0: off)
+    touchdown: TouchdownLevelParams = dc.field(default_factory=TouchdownLevelParams)
     perception: TargetEstimatorParams = param_file(TargetEstimatorParams,
                                                    "target_perception.yaml")  # landing stacks
     estimator_bank: BankParams = param_file(BankParams, "estimator_bank.yaml")

@@ -54,7 +54,7 @@ def _landing(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     parts = add_landing_onboard(builder, vehicle, scenario.mission, onboard.linear_mpc,
                                 onboard.linear_model, odometry, onboard.perception,
                                 onboard.failsafe_switch, scenario.camera_blackouts,
-                                command_filter(scenario.faults.command))
+                                command_filter(scenario.faults.command), onboard.touchdown)
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,
                         parts.finished(scenario.scoring.settle_time), {"trackers": []}, parts)
 

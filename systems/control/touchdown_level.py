@@ -61,7 +61,7 @@ class TouchdownLevel(LeafSystem):
     def levelling(self, context) -> bool:
         """Whether the command is levelled now."""
         mode = MISSION_STATUS.get(self._status.Eval(context), "mode")
-        if mode not in (Mode.LANDING_P2, Mode.LANDED):
+        if self._height <= 0.0 or mode not in (Mode.LANDING_P2, Mode.LANDED):
             return False
         target = self._target.Eval(context)
         height = (STATE_ESTIMATE.get(self._estimate.Eval(context), "p_EB")[2]
