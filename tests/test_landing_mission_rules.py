@@ -7,7 +7,7 @@ import pytest
 from alight.diagrams.analysis.landing import mission_transitions, score_landing
 from alight.diagrams.running.runner import run as run_scenario
 from alight.diagrams.scenario import load_scenario
-from alight.systems.boundary import REFERENCE, TARGET_ESTIMATE
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMissionParams, Mode, Reason,
                                             horizontal_sigma, time_to_touchdown)
 from test_landing_mission import Scripted, fly, moving_target, transitions
@@ -99,3 +99,34 @@ def test_target_unseen_for_1_5_s_in_follow_is_pursued_and_reacquired(tmp_path):
     score = score_landing(run, scenario.scoring.impact.vertical_speed,
                           scenario.scoring.impact.horizontal_speed)
     assert score.success, score.row()
+
+
+class Offset(Scripted):
+    """The ideal vehicle's state estimate displaced by `offset` [m] in x from `start` on (a
+    tracking error the controller does not remove, e.g. a steady wind offset)."""
+
+    def __init__(self, target, start: float, offset: float):
+        self._start, self._offset = start, offset
+        super().__init__(target)
+
+    def _estimate(self, context, output):
+        super()._estimate(context, output)
+        if context.get_time() >= self._start:
+            output.get_mutable_value()[STATE_ESTIMATE.slice("p_EB")][0] += self._offset
+
+
+def test_tracking_error_at_the_phase_2_boundary_aborts_every_attempt():
+    target = moving_target(2.0, appear=17.0)
+    nominal = transitions(fly(target, 40.0))
+    p2 = [t for t, m, _ in nominal if m == Mode.LANDING_P2][0]
+    logs = fly(target, 40.0, script=Offset(target, 16.0, 0.6))
+    events = transitions(logs)
+    modes = [m for _, m, _ in events]
+    assert Mode.LANDING_P2 not in modes and Mode.WAYPOINT not in modes[2:]
+    aborts = [t for t, m, r in events if r == Reason.PREDICTED_MISS]
+    assert len(aborts) >= 2 and abs(aborts[0] - p2) <= 0.05 + 1e-9   # at the boundary
+    t, status = logs["mission_status"]
+    at_abort = np.searchsorted(t, aborts[0])
+    sigma = status[at_abort, MISSION_STATUS.slice("sigma_xy")][0]
+    assert 3 * sigma < 0.2                                   # not the target's uncertainty
+    assert status[at_abort, MISSION_STATUS.slice("predicted_miss")][0] > 0.6
