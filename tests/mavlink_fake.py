@@ -20,6 +20,17 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_for(condition, timeout: float, what: str) -> float:
+    """Polls `condition` until it holds (returns the monotonic time it did) or raises an
+    AssertionError naming `what` after `timeout` s of wall time."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return time.monotonic()
+        time.sleep(0.01)
+    raise AssertionError(f"not within {timeout} s: {what}")
+
+
 class FakeAutopilot:
     """Answers COMMAND_LONG from `answers[command]` (a list used in order: a MAV_RESULT, or None
     for no answer at all; then ACCEPTED), applies accepted arm/mode/land commands to its own

@@ -17,7 +17,7 @@ from alight.hw.frames import b_to_frd, q_wb_to_nf
 from alight.hw.link import CommandDenied, LinkParams, MavlinkLink
 from alight.hw.realtime import WallClock
 from alight.systems.boundary import FC_COMMAND, FC_STATUS, ActiveMode, CommandMode
-from mavlink_fake import SimAutopilotProcess
+from mavlink_fake import SimAutopilotProcess, wait_for
 
 ENCODER = mavlink.MAVLink(None, 1, 191)
 STALE = 0.5        # models/sim_vehicle.yaml commander.stale_timeout
@@ -152,14 +152,6 @@ class Streamer:
         self._running = False
         self._thread.join()
 
-
-def wait_for(condition, timeout, what):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return time.monotonic()
-        time.sleep(0.01)
-    raise AssertionError(f"not within {timeout} s: {what}")
 
 
 def sleep_sim(link, duration):

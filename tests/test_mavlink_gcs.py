@@ -25,7 +25,7 @@ from alight.hw.ground_station import INT32, REAL32, GroundStationService, emulat
 from alight.hw.link import CommandDenied, LinkParams, MavlinkLink
 from alight.hw.realtime import WallClock
 from alight.systems.autopilot.config import FlightControllerParams
-from mavlink_fake import FrameEncoder, SimAutopilotProcess, free_udp_port
+from mavlink_fake import FrameEncoder, SimAutopilotProcess, free_udp_port, wait_for
 
 GCS = FrameEncoder(255, 190)
 
@@ -111,14 +111,6 @@ def test_the_mission_protocol_answers_no_mission():
     [ack] = ask(gcs, "mission_clear_all", 1, 1, 0)
     assert ack.type == mavlink.MAV_MISSION_ACCEPTED
 
-
-def wait_for(condition, timeout, what):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"not within {timeout} s: {what}")
 
 
 def sleep_sim(link, duration):

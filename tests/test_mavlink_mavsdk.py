@@ -3,7 +3,6 @@ flies `alight sim-autopilot` as it would fly PX4. It discovers a PX4 autopilot, 
 IMU telemetry, is refused an arm with a high thrust setpoint, arms and starts OFFBOARD with attitude
 setpoints, rolls the vehicle 10 degrees right (checked in the simulation's ground truth, which also
 checks the frame conversions against an independent encoder) and lands with the land action."""
-import time
 
 import numpy as np
 import pytest
@@ -14,18 +13,10 @@ from mavsdk.plugins.telemetry import FlightMode, Telemetry
 
 from alight.diagrams.running.run_log import read_run
 from alight.systems.rotations import rotation_matrix
-from mavlink_fake import SimAutopilotProcess
+from mavlink_fake import SimAutopilotProcess, wait_for
 
 pytestmark = pytest.mark.mission
 
-
-def wait_for(condition, timeout, what):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"not within {timeout} s: {what}")
 
 
 def test_mavsdk_reads_telemetry_arms_flies_offboard_attitude_and_lands(tmp_path):
