@@ -57,6 +57,18 @@ def estimate(**fields):
     values.update(fields)
     return STATE_ESTIMATE.vector(**values)
 
+def position_errors(positions, truth):
+    """MAVSDK `position_velocity_ned` samples [(autopilot time s, PositionVelocityNed)] against
+    the ground-truth stream: their stamps, the true NED positions there and the errors [m]."""
+    t, p = truth["time"].to_numpy(), truth[["p_WB_0", "p_WB_1", "p_WB_2"]].to_numpy()
+    ned = np.array([[pv.position.north_m, pv.position.east_m, pv.position.down_m]
+                    for _, pv in positions])
+    stamps = np.array([s for s, _ in positions])
+    true_ned = np.column_stack([np.interp(stamps, t, p[:, 0]), -np.interp(stamps, t, p[:, 1]),
+                                -np.interp(stamps, t, p[:, 2])])
+    return stamps, true_ned, np.linalg.norm(ned - true_ned, axis=1)
+
+
 
 def test_odometry_is_external_vision_in_frd_and_round_trips():
     sent = estimate()
@@ -378,17 +390,12 @@ def test_mavsdk_on_the_ground_station_link_follows_a_hil_flight(tmp_path):
     assert status == 0, hil.text
     sim = read_run(server.run_dir)
     truth = sim["ground_truth"]
-    t, p = truth["time"].to_numpy(), truth[["p_WB_0", "p_WB_1", "p_WB_2"]].to_numpy()
+    p = truth[["p_WB_0", "p_WB_1", "p_WB_2"]].to_numpy()
     # While the odometry flows (when `alight hil` has ended, EKF2 dead-reckons on the IMU)
     last_vision = sim["local_position"]["last_fusion"].max()
-    flying = [(s, pv) for s, pv in seen["position"]
-              if s <= last_vision and math.isfinite(pv.position.north_m)]
-    ned = np.array([[pv.position.north_m, pv.position.east_m, pv.position.down_m]
-                    for _, pv in flying])
-    stamps = np.array([s for s, _ in flying])
-    true_ned = np.column_stack([np.interp(stamps, t, p[:, 0]), -np.interp(stamps, t, p[:, 1]),
-                                -np.interp(stamps, t, p[:, 2])])
-    error = np.linalg.norm(ned - true_ned, axis=1)
+    stamps, true_ned, error = position_errors(
+        [(s, pv) for s, pv in seen["position"]
+         if s <= last_vision and math.isfinite(pv.position.north_m)], truth)
     print(f"MAVSDK (ground-station link) position error p50 {np.median(error):.3f} p99 "
           f"{np.percentile(error, 99):.3f} m over {len(error)} samples, "
           f"{np.ptp(stamps):.1f} s; the vehicle flew {np.ptp(p[:, 0]):.2f} m x, "
@@ -530,13 +537,7 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
     p = truth[["p_WB_0", "p_WB_1", "p_WB_2"]].to_numpy()
     # MAVSDK's position (NED) is the truth to the odometry noise EKF2 assumes (0.1 m), with
     # the telemetry's pairing to the latest attitude time (<= 20 ms at < 2 m/s)
-    flying = [(s, pv) for s, pv in seen["position"] if s < t_blind]
-    ned = np.array([[pv.position.north_m, pv.position.east_m, pv.position.down_m]
-                    for _, pv in flying])
-    stamps = np.array([s for s, _ in flying])
-    true_ned = np.column_stack([np.interp(stamps, t, p[:, 0]), -np.interp(stamps, t, p[:, 1]),
-                                -np.interp(stamps, t, p[:, 2])])
-    error = np.linalg.norm(ned - true_ned, axis=1)
+    _, _, error = position_errors([(s, pv) for s, pv in seen["position"] if s < t_blind], truth)
     print(f"MAVSDK position error p50 {np.median(error):.3f} p99 "
           f"{np.percentile(error, 99):.3f} m over {len(error)} samples; climb "
           f"{p[:, 2].max() - p[0, 2]:.2f} m")
