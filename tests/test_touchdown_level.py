@@ -15,7 +15,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import VectorLogSink
 
-from alight.diagrams.analysis.landing import MAX_TILT
+from alight.diagrams.analysis.landing import MAX_TILT, score_landing
+from alight.diagrams.running.runner import run as run_scenario
 from alight.diagrams.scenario import load_scenario, vehicle_config
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
 from alight.systems.boundary import FC_COMMAND, GROUND_TRUTH, STATE_ESTIMATE, TARGET_ESTIMATE
@@ -71,8 +72,8 @@ def test_a_touchdown_tilted_into_the_air_tips_over_and_a_level_one_stays_upright
     assert level[-1] < 1.0                 # resting on its four legs
 
 
-def levelled(mode: Mode, height: float, valid: float = 1.0) -> np.ndarray:
-    dut = TouchdownLevel(TouchdownLevelParams(height=1.0))
+def levelled(mode: Mode, height: float, valid: float = 1.0, level_height: float = 1.0):
+    dut = TouchdownLevel(TouchdownLevelParams(height=level_height))
     context = dut.CreateDefaultContext()
     q_WD = RollPitchYaw(0.1, -0.2, 0.7).ToQuaternion().wxyz()
     dut.GetInputPort("fc_command").FixValue(context, FC_COMMAND.vector(
@@ -97,13 +98,32 @@ def test_under_the_height_in_phase_2_the_command_is_level_at_its_heading(mode):
         assert FC_COMMAND.get(command, field) == FC_COMMAND.get(levelled(Mode.FOLLOW, 0.9), field)
 
 
-@pytest.mark.parametrize("mode, height, valid", [
-    (Mode.LANDING_P2, 1.1, 1.0),   # above the height
-    (Mode.LANDING_P1, 0.9, 1.0),   # Phase 1 can still abort: the MPC keeps its attitude
-    (Mode.FOLLOW, 0.5, 1.0),
-    (Mode.LANDING_P2, 0.5, 0.0),   # no target estimate: no height above it
+@pytest.mark.parametrize("mode, height, valid, level_height", [
+    (Mode.LANDING_P2, 1.1, 1.0, 1.0),   # above the height
+    (Mode.LANDING_P1, 0.9, 1.0, 1.0),   # Phase 1 can still abort: the MPC keeps its attitude
+    (Mode.FOLLOW, 0.5, 1.0, 1.0),
+    (Mode.LANDING_P2, 0.5, 0.0, 1.0),   # no target estimate: no height above it
+    (Mode.LANDING_P2, -0.1, 1.0, 0.0),  # height 0: off, even under the target's estimate
 ])
-def test_otherwise_the_command_passes_unchanged(mode, height, valid):
-    command = levelled(mode, height, valid)
+def test_otherwise_the_command_passes_unchanged(mode, height, valid, level_height):
+    command = levelled(mode, height, valid, level_height)
     assert tilt_deg(FC_COMMAND.get(command, "q_WD")) > 10.0
     assert np.all(FC_COMMAND.get(command, "w_D") == [0.1, 0.2, 0.3])
+
+
+@pytest.mark.mission
+def test_the_windy_landing_that_tipped_over_lands_level(tmp_path):
+    """The run the cause was found on (3 m/s, 15 km/h wind, 0.8 m/s gusts, seed 1): landed,
+    touching down level (measured 0.5 deg; it was 11.7 deg and tipped over)."""
+    scenario = load_scenario("field", overrides=[
+        "target_motion.speed: 3.0", f"vehicle.wind.mean_speed: {15 / 3.6}",
+        "vehicle.wind.gust_std: 0.8", "random_seed: 1"])
+    run = run_scenario(scenario, run_dir=tmp_path / "run", command="land")
+    impact = scenario.scoring.impact
+    score = score_landing(run, impact.vertical_speed, impact.horizontal_speed)
+    assert score.success, score.row()
+    truth = run["ground_truth"]
+    touchdown = np.flatnonzero(truth["legs_platform_force"].to_numpy() > 0.0)[0]
+    q_WB = truth[[f"q_WB_{i}" for i in range(4)]].to_numpy()[touchdown]
+    assert tilt_deg(q_WB)[0] < 3.0
+    assert score.peak_leg_force < 150.0   # measured 134 N (was 140 N on one leg, tilted)
