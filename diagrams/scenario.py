@@ -73,7 +73,7 @@ class Onboard:
     failsafe_switch: FailsafeSwitchParams = param_file(FailsafeSwitchParams,
                                                        "failsafe_switch.yaml")
     mocap: MocapParams = dc.field(default_factory=MocapParams)
-    # landing: the MPC's attitude command levelled for the touchdown (height 0: off)
+    # landing stacks: the attitude command levelled for the touchdown (height 0: off)
     touchdown: TouchdownLevelParams = dc.field(default_factory=TouchdownLevelParams)
     perception: TargetEstimatorParams = param_file(TargetEstimatorParams,
                                                    "target_perception.yaml")  # landing stacks

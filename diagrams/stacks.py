@@ -63,7 +63,7 @@ def _landing_managed(builder, scenario: Scenario, vehicle, odometry) -> OnboardS
     onboard = scenario.onboard
     parts = add_landing_managed(builder, vehicle, scenario.mission, onboard.control_manager,
                                 onboard.controller, onboard.linear_mpc, odometry,
-                                onboard.perception, scenario.camera_blackouts)
+                                onboard.perception, scenario.camera_blackouts, onboard.touchdown)
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,
                         parts.finished(scenario.scoring.settle_time),
                         {"trackers": list(parts.managed.trackers)}, parts)

@@ -266,18 +266,22 @@ def _connect_member(builder, manager, name: str, system) -> None:
 
 
 def connect_managed_vehicle(builder, managed: ManagedControllers, vehicle, arm, tracker_request,
-                            odometry, estimate) -> None:
+                            odometry, estimate, command_filter=None) -> None:
     """What drives the manager (the `arm` [arm, thrust enable] and `tracker_request` ports of a
-    mission or the UAV manager) and where its command goes: the vehicle, and an odometry with
+    mission or the UAV manager) and where its command goes (through `command_filter(builder,
+    port) -> port` if given: the landing's level touchdown): the vehicle, and an odometry with
     `connect_command` (the estimator bank), which is also given the active controller's
     unbiased desired acceleration M(53) (M Sec. 3.1.1)."""
     manager = managed.manager
     builder.Connect(arm, manager.GetInputPort("arm"))
     builder.Connect(tracker_request, manager.GetInputPort("tracker_request"))
-    builder.Connect(manager.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
+    command = manager.GetOutputPort("fc_command")
+    if command_filter is not None:
+        command = command_filter(builder, command)
+    builder.Connect(command, vehicle.GetInputPort("fc_command"))
     if hasattr(odometry, "connect_command"):
-        odometry.connect_command(builder, manager.GetOutputPort("fc_command"),
-                                 manager.GetOutputPort("desired_acceleration"), estimate)
+        odometry.connect_command(builder, command, manager.GetOutputPort("desired_acceleration"),
+                                 estimate)
 
 
 def _add_tracker(builder, manager, entry: TrackerEntry, controllers_config, tracker_params,
@@ -298,11 +302,12 @@ def _add_tracker(builder, manager, entry: TrackerEntry, controllers_config, trac
 
 
 def add_managed_logging(builder, vehicle, managed: ManagedControllers, state_estimate, goal,
-                        period: float) -> RunLoggers:
-    """The vehicle's streams and command, the estimate, the goal and the issued reference, the
-    manager's status and every controller's status."""
+                        period: float, command=None) -> RunLoggers:
+    """The vehicle's streams and command (`command`, the port that drives the vehicle, if not
+    the manager's own), the estimate, the goal and the issued reference, the manager's status
+    and every controller's status."""
     manager = managed.manager
-    loggers = add_run_logging(builder, vehicle, manager.GetOutputPort("fc_command"))
+    loggers = add_run_logging(builder, vehicle, command or manager.GetOutputPort("fc_command"))
     loggers.add(builder, "state_estimate", state_estimate, STATE_ESTIMATE, period)
     loggers.add(builder, "goal", goal, REFERENCE, period)
     loggers.add(builder, "reference", manager.GetOutputPort("reference"), REFERENCE, period)

@@ -68,6 +68,15 @@ def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: L
     loggers.add(builder, "target_estimate", target_estimate, TARGET_ESTIMATE, period=period)
 
 
+def add_touchdown_level(builder: DiagramBuilder, params: TouchdownLevelParams,
+                        mission: LandingMission) -> TouchdownLevel:
+    """The level touchdown `params` on `mission`'s status; its `fc_command`, `state_estimate`
+    and `target_estimate` inputs are the caller's to connect."""
+    level = builder.AddNamedSystem("touchdown_level", TouchdownLevel(params))
+    builder.Connect(mission.GetOutputPort("mission_status"), level.GetInputPort("mission_status"))
+    return level
+
+
 def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: LandingMissionParams,
                         mpc_params: LinearMpcParams, model: LinearModelParams, odometry,
                         perception: TargetEstimatorParams, fallback: FailsafeSwitchParams,
@@ -81,7 +90,7 @@ def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: Landin
     `camera_blackouts`) and the run logging; `command_filter` as in `add_mpc_control` (fault
     injection, before the levelling)."""
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
-    level = builder.AddNamedSystem("touchdown_level", TouchdownLevel(touchdown))
+    level = add_touchdown_level(builder, touchdown, mission)
 
     def levelled(builder, command):
         if command_filter is not None:
@@ -95,7 +104,6 @@ def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: Landin
                            command_filter=levelled)
     ports = add_down_camera_perception(builder, vehicle, loop.state_estimate_port, perception,
                                        camera_blackouts)
-    builder.Connect(mission.GetOutputPort("mission_status"), level.GetInputPort("mission_status"))
     builder.Connect(loop.state_estimate_port, level.GetInputPort("state_estimate"))
     builder.Connect(ports.target_estimate, level.GetInputPort("target_estimate"))
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))

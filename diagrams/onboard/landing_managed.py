@@ -17,11 +17,12 @@ from alight.diagrams.onboard.control_manager import (ControlManagerConfig, Manag
                                                      add_control_manager, add_managed_logging,
                                                      connect_managed_vehicle)
 from alight.diagrams.onboard.landing import (add_down_camera_perception, add_mission_logging,
-                                             landed_and_disarmed)
+                                             add_touchdown_level, landed_and_disarmed)
 from alight.diagrams.onboard.perception import TargetPerceptionPorts
 from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.running.simulation import DisarmedAfter
 from alight.systems.control.linear_mpc import LinearMpcParams
+from alight.systems.control.touchdown_level import TouchdownLevelParams
 from alight.systems.mission.landing import LandingMission, LandingMissionParams
 from alight.systems.mission.landing_requests import LandingRequests
 from alight.systems.perception.target_estimator import TargetEstimatorParams
@@ -71,11 +72,14 @@ def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: Landin
                         config: ControlManagerConfig, controller: str,
                         mpc_params: LinearMpcParams, odometry,
                         perception: TargetEstimatorParams,
-                        camera_blackouts=()) -> LandingManagedOnboard:
+                        camera_blackouts=(),
+                        touchdown: TouchdownLevelParams = TouchdownLevelParams()
+                        ) -> LandingManagedOnboard:
     """The landing mission on the managed stack `config` flown by `controller`, on `vehicle`'s
     boundary ports (simulated or MAVLink); `odometry` as in diagrams/onboard/mpc_loop.py
     `add_mpc_control`; the linear MPC controller takes `mpc_params` (the landing tuning); target
-    perception `perception` on `down_image`."""
+    perception `perception` on `down_image`; the manager's command levelled for the `touchdown`
+    (diagrams/onboard/landing.py `add_touchdown_level`)."""
     config = landing_manager_config(controller, config)
     controllers_config = dc.replace(config.controller_params, linear_mpc=mpc_params)
     estimate = odometry(builder, vehicle)
@@ -93,10 +97,20 @@ def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: Landin
     managed = add_control_manager(builder, config, controllers_config, estimate, goals=goals,
                                   fc_attitude=vehicle.GetOutputPort("fc_attitude"),
                                   target_estimate=ports.target_estimate)
+    level = add_touchdown_level(builder, touchdown, mission)
+    builder.Connect(estimate, level.GetInputPort("state_estimate"))
+    builder.Connect(ports.target_estimate, level.GetInputPort("target_estimate"))
+
+    def levelled(builder, command):
+        builder.Connect(command, level.GetInputPort("fc_command"))
+        return level.GetOutputPort("fc_command")
+
     connect_managed_vehicle(builder, managed, vehicle, mission.GetOutputPort("arm"),
-                            requests.GetOutputPort("tracker_request"), odometry, estimate)
+                            requests.GetOutputPort("tracker_request"), odometry, estimate,
+                            levelled)
     # "goal": the mission's own L Sec. 6.3 reference, beside the issued one ("reference").
     loggers = add_managed_logging(builder, vehicle, managed, estimate,
-                                  mission.GetOutputPort("reference"), config.period)
+                                  mission.GetOutputPort("reference"), config.period,
+                                  level.GetOutputPort("fc_command"))
     add_mission_logging(builder, loggers, mission, ports.target_estimate, mission_params.period)
     return LandingManagedOnboard(vehicle, estimate, mission, requests, managed, ports, loggers)
