@@ -74,7 +74,7 @@ class Onboard:
                                                        "failsafe_switch.yaml")
     mocap: MocapParams = dc.field(default_factory=MocapParams)
     # landing stacks: the attitude command levelled for the touchdown (height 0: off)
-    touchdown: TouchdownLevelParams = dc.field(default_factory=TouchdownLevelParams)
+    touchdown: TouchdownLevelParams = param_file(TouchdownLevelParams, "touchdown_level.yaml")
     perception: TargetEstimatorParams = param_file(TargetEstimatorParams,
                                                    "target_perception.yaml")  # landing stacks
     estimator_bank: BankParams = param_file(BankParams, "estimator_bank.yaml")

@@ -23,9 +23,10 @@ from alight.systems.rotations import heading, heading_quaternion, rotation_matri
 
 @dc.dataclass
 class TouchdownLevelParams:
-    # CoM above the platform [m] under which Phase 2's attitude command is level: the legs reach
-    # 0.22 m below the CoM (hexacopter_f550.sdf), 1.8 m/s covers the 0.3 m left in 0.17 s, about
-    # the time the attitude loop takes to take out 12 deg. 0 turns the levelling off.
+    # CoM above the target [m] under which Phase 2's attitude command is level (0: never). The
+    # legs reach 0.22 m below the CoM (hexacopter_f550.sdf): from 1.0 m, 1.8 m/s (L Table 2)
+    # leaves 0.4 s, what the attitude loop needs to take out 10-12 deg (from 0.55 m the flown
+    # seed still had 9 deg at contact). models/touchdown_level.yaml.
     height: float = bounded(1.0, 0.0, 5.0, "m")
 
 
