@@ -218,10 +218,11 @@ class MavlinkEndpoint:
                 return
             counters.messages += 1
             counters.messages_v1 += version == 1
-        from_peer = self._valid_frame_from(source, header, now) \
+        from_peer = self._valid_frame_from(source, header, now, version) \
             if self._listening and source is not None else True
         if from_peer and self.peer_version != 2:  # 1 until the peer speaks 2 (MAV_PROTO_VER 0)
-            self.peer_version = version
+            with self._send_lock:
+                self.peer_version = version
         try:
             if message.get_type() == "TIMESYNC":
                 self._timesync(message, now)
@@ -235,14 +236,15 @@ class MavlinkEndpoint:
             if first:
                 LOG.exception("MAVLink handler failed on %s", message.get_type())
 
-    def _valid_frame_from(self, source: tuple, header, now: float) -> bool:
+    def _valid_frame_from(self, source: tuple, header, now: float, version: int) -> bool:
         """The peer rule of a listening UDP end (module docstring); True when `source` is (now)
-        the peer."""
+        the peer. A new peer and its version (that of the frame that made it the peer) change
+        together under the send lock: no frame goes to it in another version in between."""
         if source == self.peer:
             self._peer_seen = now
         elif self.peer is None or now - self._peer_seen > self._peer_timeout:
-            self.peer, self._peer_seen = source, now
-            self.peer_version = None  # a new peer: its own frames tell its version
+            with self._send_lock:
+                self.peer, self.peer_version, self._peer_seen = source, version, now
             LOG.info("MAVLink peer: %s:%d (system %d, component %d)", source[0], source[1],
                      header.srcSystem, header.srcComponent)
         else:
