@@ -2,47 +2,16 @@
 the legs' normal forces on the ground and on the platform, every other contact, accumulated at
 every sample of the contacts (4 ms); and the legs' structural limit (`max_leg_force`,
 hexacopter_f550.yaml) against the landing-gear drop tests it is sized by."""
-import dataclasses as dc
-
 import numpy as np
 import pytest
-from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import VectorLogSink
 
 from alight.diagrams.scenario import load_scenario, vehicle_config
-from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.systems.boundary import FC_COMMAND, GROUND_TRUTH
+from drops import drop
 
 G = 9.81
 INCH = 0.0254  # m
 LIMIT_DROP = 13 * INCH             # 14 CFR 27.725(a): the landing gear's limit drop
 RESERVE_DROP = 1.5 * LIMIT_DROP    # 27.727(a): the reserve energy drop, withstood unbroken
-
-
-def drop(config, height: float, duration: float = 1.0, rpy=(0.0, 0.0, 0.0), p_WB=None):
-    """The disarmed vehicle of `config` let go `height` m above its resting pose (or at `p_WB`,
-    turned by `rpy`); the ground truth at every plant step."""
-    builder = DiagramBuilder()
-    vehicle = builder.AddSystem(make_sim_vehicle(config))
-    log = builder.AddSystem(VectorLogSink(GROUND_TRUTH.size, config.time_step))
-    builder.Connect(vehicle.GetOutputPort("ground_truth"), log.get_input_port())
-    diagram = builder.Build()
-    context = diagram.CreateDefaultContext()
-    vehicle.GetInputPort("fc_command").FixValue(vehicle.GetMyContextFromRoot(context),
-                                                FC_COMMAND.vector())
-    plant = vehicle.GetSubsystemByName("plant")
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    body = plant.GetBodyByName(config.airframe.body)
-    rest = plant.EvalBodyPoseInWorld(plant_context, body).translation()
-    p = rest + [0.0, 0.0, height] if p_WB is None else np.asarray(p_WB)
-    plant.SetFreeBodyPose(plant_context, body, RigidTransform(RollPitchYaw(*rpy), p))
-    simulator = Simulator(diagram, context)
-    simulator.AdvanceTo(duration)
-    data = log.FindLog(simulator.get_context())
-    return data.sample_times(), {field: data.data()[GROUND_TRUTH.slice(field)].T.squeeze()
-                                 for field, _ in GROUND_TRUTH.fields}
 
 
 @pytest.fixture(scope="module")

@@ -9,20 +9,16 @@ What: in Landing Phase 2, under `height` above the target, the command is level 
 """
 import numpy as np
 import pytest
-from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.multibody.math import SpatialVelocity
-from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import VectorLogSink
+from pydrake.math import RollPitchYaw
 
 from alight.diagrams.analysis.landing import MAX_TILT, score_landing
 from alight.diagrams.running.runner import run as run_scenario
 from alight.diagrams.scenario import load_scenario, vehicle_config
-from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.systems.boundary import FC_COMMAND, GROUND_TRUTH, STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, TARGET_ESTIMATE
 from alight.systems.control.touchdown_level import TouchdownLevel, TouchdownLevelParams
 from alight.systems.mission.landing import MISSION_STATUS, Mode
 from alight.systems.rotations import heading, rotation_matrix, tilt_deg
+from drops import drop
 
 # The flown touchdown (seed 1 above, 0.02 m above the first leg contact), in the car's frame
 # (x forward): the air over the car, the velocity relative to it, the tilt into that air.
@@ -34,34 +30,17 @@ HEIGHT = 0.24                                 # m, CoM above the platform (legs 
 
 def touchdown(tilt: float) -> np.ndarray:
     """The disarmed vehicle let go at the flown touchdown state tilted by `tilt` [rad] into the
-    air; its tilt [deg] every 4 ms for 1.5 s."""
+    air; its tilt [deg] at every plant step for 1.5 s."""
     direction = np.degrees(np.arctan2(AIR[1], AIR[0]))
     config = vehicle_config(load_scenario("field", overrides=[
         "target_motion.speed: 0.0", f"vehicle.wind.mean_speed: {np.linalg.norm(AIR)}",
         f"vehicle.wind.direction: {direction}", "vehicle.wind.gust_std: 0.0"]))
-    builder = DiagramBuilder()
-    vehicle = builder.AddSystem(make_sim_vehicle(config))
-    log = builder.AddSystem(VectorLogSink(GROUND_TRUTH.size, 0.004))
-    builder.Connect(vehicle.GetOutputPort("ground_truth"), log.get_input_port())
-    diagram = builder.Build()
-    context = diagram.CreateDefaultContext()
-    vehicle.GetInputPort("fc_command").FixValue(vehicle.GetMyContextFromRoot(context),
-                                                FC_COMMAND.vector())
-    plant = vehicle.GetSubsystemByName("plant")
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    body = plant.GetBodyByName(config.airframe.body)
     # Tilted into the air: the thrust axis leans upwind (pitch about the axis across it).
     upwind = np.arctan2(AIR[1], AIR[0]) + np.pi
-    rpy = RollPitchYaw(0.0, tilt, upwind)
     x, y = config.target.initial_position
-    plant.SetFreeBodyPose(plant_context, body, RigidTransform(
-        rpy, [x, y, config.target.platform_height + HEIGHT]))
-    plant.SetFreeBodySpatialVelocity(plant_context, body, SpatialVelocity(np.zeros(3),
-                                                                          V_TOUCHDOWN))
-    simulator = Simulator(diagram, context)
-    simulator.AdvanceTo(1.5)
-    data = log.FindLog(simulator.get_context()).data()
-    return tilt_deg(data[GROUND_TRUTH.slice("q_WB")].T)
+    _, truth = drop(config, 0.0, duration=1.5, rpy=(0.0, tilt, upwind),
+                    p_WB=[x, y, config.target.platform_height + HEIGHT], v_WB=V_TOUCHDOWN)
+    return tilt_deg(truth["q_WB"])
 
 
 def test_a_touchdown_tilted_into_the_air_tips_over_and_a_level_one_stays_upright():
