@@ -16,7 +16,7 @@ from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND,
                                      STATE_ESTIMATE)
 from alight.systems.control.linear_model import (continuous_model, discretize,
                                                  euler_pitch_roll_yaw)
-from alight.systems.control.linear_mpc import LinearMpc, LinearMpcQp, MpcReason
+from alight.systems.control.linear_mpc import LinearMpc, LinearMpcQp, MpcReason, carrot
 from alight.systems.control.persistent_daqp import PersistentDaqp
 from alight.systems.control.persistent_osqp import QpResult
 from alight.systems.plant.wind import WindParams
@@ -176,6 +176,29 @@ def _tick(dut, context):
     simulator.AdvanceTo(context.get_time() + load_linear_mpc().period)
     return (dut.GetOutputPort("fc_command").Eval(context),
             dut.GetOutputPort("controller_status").Eval(context))
+
+
+def _command_toward(p_ref):
+    dut, context, _ = _mpc_context()
+    dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
+        stamp=0.0, p=p_ref, v=np.zeros(3), a=np.zeros(3), j=np.zeros(3), heading=0.0,
+        heading_rate=0.0))
+    return _tick(dut, context)[0]
+
+
+def test_a_far_reference_is_flown_as_one_at_max_position_error_on_the_line_to_it():
+    """A 200 m step (the landing mission's return to its waypoint) asks no more of the vehicle
+    than one `max_position_error` (10 m) away: the soft speed and tilt bounds hold (without the
+    carrot the fault campaign's return flew at 14 m/s against 6 m/s)."""
+    limit = load_linear_mpc().max_position_error
+    direction = np.array([0.6, -0.8, 0.0])
+    far = _command_toward([0, 0, 3.0] + 200.0 * direction)
+    at_limit = _command_toward([0, 0, 3.0] + limit * direction)
+    nearer = _command_toward([0, 0, 3.0] + 0.5 * limit * direction)
+    assert np.array_equal(far, at_limit)
+    assert not np.allclose(far, nearer)       # within the limit the reference is untouched
+    assert carrot(np.zeros(3), [3.0, 4.0, 0.0], 2.5) == pytest.approx([1.5, 2.0, 0.0])
+    assert carrot(np.zeros(3), [3.0, 4.0, 0.0], 5.0) == pytest.approx([3.0, 4.0, 0.0])
 
 
 def test_nan_estimate_never_reaches_the_command():
