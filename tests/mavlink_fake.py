@@ -8,6 +8,7 @@ import sys
 import threading
 import time
 
+from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink
 
 from alight.hw import px4
@@ -185,11 +186,13 @@ class NullTransport:
 
 
 class FrameEncoder:
-    """Encodes frames as a system/component would send them (its own sequence numbers)."""
+    """Encodes frames as a system/component would send them (its own sequence numbers), in
+    MAVLink `version` 1 or 2 (pymavlink's own encoder of that version)."""
 
-    def __init__(self, system: int, component: int):
+    def __init__(self, system: int, component: int, version: int = 2):
         self._data = bytearray()
-        self.mav = mavlink.MAVLink(self, system, component)
+        module = mavlink1 if version == 1 else mavlink
+        self.mav = module.MAVLink(self, system, component)
 
     def write(self, buf):
         self._data += buf

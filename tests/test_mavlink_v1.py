@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from alight.hw.link import LinkParams, MavlinkLink
 from alight.hw.realtime import WallClock
-from mavlink_fake import FakeAutopilot, SimAutopilotProcess
+from mavlink_fake import FakeAutopilot, FrameEncoder, SimAutopilotProcess
 
 ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
 MAGIC = {1: mavlink.PROTOCOL_MARKER_V1, 2: mavlink.PROTOCOL_MARKER_V2}
@@ -32,23 +32,6 @@ class Capture:
         pass
 
 
-class Encoder:
-    """Frames as a peer of `version` sends them (pymavlink's own encoder of that version)."""
-
-    def __init__(self, version: int, system: int, component: int):
-        module = mavlink1 if version == 1 else mavlink
-        self._data = bytearray()
-        self.mav = module.MAVLink(self, system, component, use_native=False)
-
-    def write(self, buf):
-        self._data += buf
-
-    def frame(self, message) -> bytes:
-        self._data = bytearray()
-        self.mav.send(message)
-        return bytes(self._data)
-
-
 def test_the_companion_link_answers_a_mavlink1_autopilot_in_mavlink1_until_it_speaks_2():
     transport = Capture()
     link = MavlinkLink(transport, LinkParams(command_timeout=2.0), WallClock(), datagrams=False)
@@ -56,7 +39,7 @@ def test_the_companion_link_answers_a_mavlink1_autopilot_in_mavlink1_until_it_sp
                                           mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
     link.send(heartbeat)
     assert transport.frames[-1][0] == MAGIC[2]  # unheard peer: MAVLink 2
-    old = Encoder(1, 1, 1)
+    old = FrameEncoder(1, 1, version=1)
     link.feed(old.frame(old.mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
                                                  mavlink.MAV_AUTOPILOT_PX4, 0, 0, 0)))
     assert link.state().heartbeat_time > -float("inf") and link.peer_version == 1
@@ -79,7 +62,7 @@ def test_the_companion_link_answers_a_mavlink1_autopilot_in_mavlink1_until_it_sp
     link.send(link.mav.odometry_encode(0, 1, 8, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0, 0, 0, 0,
                                        [float("nan")] * 21, [float("nan")] * 21))
     assert len(transport.frames) == sent_before and link.counters.unsendable_v1 == 1
-    new = Encoder(2, 1, 1)
+    new = FrameEncoder(1, 1, version=2)
     new.mav.seq = old.mav.seq  # the same autopilot: one sequence
     link.feed(new.frame(new.mav.heartbeat_encode(mavlink.MAV_TYPE_HEXAROTOR,
                                                  mavlink.MAV_AUTOPILOT_PX4, 0, 0, 0)))
