@@ -30,7 +30,7 @@ class TouchdownLevelParams:
     height: float = bounded(1.0, 0.0, 5.0, "m")
 
 
-def level_command(command: np.ndarray) -> np.ndarray:
+def level_attitude(command: np.ndarray) -> np.ndarray:
     """`command` (FC_COMMAND) with its attitude level at its own heading, no feed-forward rate;
     thrust, mode and arm unchanged."""
     levelled = np.array(command, dtype=float)
@@ -45,7 +45,7 @@ class TouchdownLevel(LeafSystem):
     Input  `mission_status`  MISSION_STATUS (its `mode`)
     Input  `state_estimate`  STATE_ESTIMATE (p_EB [m])
     Input  `target_estimate` TARGET_ESTIMATE (p_WT [m], `valid`)
-    Output `fc_command`      the command, levelled (`level_command`) in Landing Phase 2 and
+    Output `fc_command`      the command, levelled (`level_attitude`) in Landing Phase 2 and
                              Landed while the CoM is under `height` above the target; otherwise
                              unchanged (direct feed-through)
     """
@@ -71,4 +71,4 @@ class TouchdownLevel(LeafSystem):
 
     def _calc(self, context, output):
         command = self._command.Eval(context)
-        output.SetFromVector(level_command(command) if self.levelling(context) else command)
+        output.SetFromVector(level_attitude(command) if self.levelling(context) else command)
