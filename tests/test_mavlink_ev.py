@@ -609,6 +609,9 @@ def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     # An onboard side that keeps up sends within a tick (measured p90 25 ms, max 37 ms);
     # one that lags the autopilot (a loaded machine) tracks frames late and its errors grow.
     age = np.percentile(received["stamp"].to_numpy() - t, 90)
+    realtime = onboard.metadata["realtime"]
+    print(f"onboard real time: {realtime['overruns']} overruns, max lag "
+          f"{1e3 * realtime['max_lag']:.0f} ms")
     print(f"relative to the vehicle vs truth: p50 {median:.3f} m, {100 * within:.0f} % within "
           f"3 std; message age p90 {1e3 * age:.0f} ms")
     if age > 0.05:  # measured: 3.5 s of age gave 0.39 m p50, 43 % within 3 std
