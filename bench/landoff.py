@@ -4,7 +4,7 @@ without (admittance_distance 10 km), on the SE(3) and the MPC force controller. 
 the largest control error |p_ref - p_EB|, the thrust (largest over the held time, and at its
 end), the share of held ticks at full thrust, the largest tilt and how high the vehicle got.
 
-    python bench/landoff.py [--duration 5] [--controllers se3,mpc] [--seed 2]
+    python bench/landoff.py [--duration 10] [--controllers se3,mpc] [--seed 2]
 """
 import argparse
 import dataclasses as dc
@@ -37,7 +37,7 @@ def figures(run, p0) -> dict:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=5.0)
+    parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--controllers", default="se3,mpc")
     parser.add_argument("--seed", type=int, default=2)
     args = parser.parse_args()

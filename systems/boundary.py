@@ -273,6 +273,12 @@ CONTROLLER_OUTPUTS = {"fc_command": FC_COMMAND, "controller_status": CONTROLLER_
 # `tracker_status`, next to every tracker's `reference` output (fields as CONTROLLER_STATUS).
 TRACKER_STATUS = VectorLayout("tracker_status", CONTROLLER_STATUS.fields)
 
+# `tracker_status.reason` of a tracker whose reference is held back by admittance (M Sec. 4.2: the
+# vehicle is held on the ground, e.g. entangled at take-off). The error it leaves is the pull of
+# what holds the vehicle, not a disturbance: controllers with a `tracker_status` input (the active
+# tracker's, through the control manager) hold their disturbance and mass integrators M(35)-(37).
+ADMITTANCE_HOLD = 7
+
 # The tracker contract (DESIGN.md "The onboard stack", M Sec. 4 and 7.2): every tracker is a
 # LeafSystem with inputs `state_estimate` (STATE_ESTIMATE), `goal` (abstract: a
 # alight.systems.tracking.goal.TrackerGoal, or a tracker-specific goal), `active` (1: only the

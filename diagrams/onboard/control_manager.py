@@ -244,6 +244,9 @@ def add_control_manager(builder, config: ControlManagerConfig,
         if controller.HasInputPort("last_disturbance"):
             builder.Connect(manager.GetOutputPort("last_disturbance"),
                             controller.GetInputPort("last_disturbance"))
+        if controller.HasInputPort("tracker_status"):
+            builder.Connect(manager.GetOutputPort("tracker_status"),
+                            controller.GetInputPort("tracker_status"))
         if fc_attitude is not None and controller.HasInputPort("fc_attitude"):
             builder.Connect(fc_attitude, controller.GetInputPort("fc_attitude"))
         controllers[entry.name] = controller

@@ -64,6 +64,9 @@ def add_landoff_loop(builder, vehicle, controllers_config: ControllersConfig,
     builder.Connect(command, tracker.GetInputPort("last_command"))
     builder.Connect(estimate, feedback.GetInputPort("state_estimate"))
     builder.Connect(tracker.GetOutputPort("reference"), feedback.GetInputPort("reference"))
+    if feedback.HasInputPort("tracker_status"):
+        builder.Connect(tracker.GetOutputPort("tracker_status"),
+                        feedback.GetInputPort("tracker_status"))
     builder.Connect(active.get_output_port(), feedback.GetInputPort("active"))
     builder.Connect(command, feedback.GetInputPort("last_command"))
     builder.Connect(vehicle.GetOutputPort("fc_attitude"), feedback.GetInputPort("fc_attitude"))

@@ -20,7 +20,9 @@ ground, where the last command is zero thrust) has no thrust step; when the last
 flying, its apparent mass M(34) on the current tilt seeds the mass estimate. The disturbance
 integrators start at zero, or, when the optional input `last_disturbance` is connected (the control
 manager forwards the previous controller's `disturbance_estimate`) and finite, from the previous
-controller's estimates; they are frozen while the ramp lasts. When the estimator frame changes
+controller's estimates; they are frozen while the ramp lasts, and while the optional input
+`tracker_status` (the active tracker's) reports ADMITTANCE_HOLD (M Sec. 4.2: the vehicle is held
+down; learning that pull as mass M(37) would wind the thrust up to its limit). When the estimator frame changes
 (frame_counter), the integrators are re-expressed in the new frame (M Sec. 3.5).
 
 Reference latency: the reference chi is advanced from its `stamp` to the tick time (at most
@@ -45,8 +47,8 @@ import dataclasses as dc
 import numpy as np
 from pydrake.math import RotationMatrix
 
-from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
-                                     CommandMode, VectorLayout)
+from alight.systems.boundary import (ADMITTANCE_HOLD, FC_ATTITUDE, FC_COMMAND, REFERENCE,
+                                     STATE_ESTIMATE, TRACKER_STATUS, CommandMode, VectorLayout)
 from alight.systems.control import disturbance
 from alight.systems.control.controller import (VALID_REASONS, Controller, ControllerReason,
                                                command_is_usable, level_command, status_vector)
@@ -96,7 +98,9 @@ class ForceController(Controller):
 
     Inputs  as `Controller` (`state_estimate`, `reference`, `active`, `last_command`);
             `last_disturbance` DISTURBANCE_ESTIMATE (optional: the previous controller's);
-            `fc_attitude` FC_ATTITUDE (optional: the flight controller's attitude, M footnote 18)
+            `fc_attitude` FC_ATTITUDE (optional: the flight controller's attitude, M footnote 18);
+            `tracker_status` TRACKER_STATUS (optional: the active tracker's; ADMITTANCE_HOLD
+            holds the integrators)
     Outputs `fc_command` FC_COMMAND (body rates + thrust); `controller_status` CONTROLLER_STATUS;
             `desired_acceleration` (3) the unbiased desired acceleration M(53) [m/s^2, in E];
             `disturbance_estimate` DISTURBANCE_ESTIMATE (d_w, d_b [N, in E], m_e [kg])
@@ -113,6 +117,7 @@ class ForceController(Controller):
         self._fc_attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._last_disturbance = self.DeclareVectorInputPort("last_disturbance",
                                                              DISTURBANCE_ESTIMATE.size)
+        self._tracker_status = self.DeclareVectorInputPort("tracker_status", TRACKER_STATUS.size)
         self._acceleration = self.DeclareDiscreteState(3)
         self._estimates = self.DeclareDiscreteState(DISTURBANCE_ESTIMATE.pack(
             d_w=np.zeros(2), d_b=np.zeros(2), m_e=vehicle.mass))
@@ -181,7 +186,7 @@ class ForceController(Controller):
         e_v = v - REFERENCE.get(reference, "v")
         ramping = x[_INTERNAL.slice("ramping")][0] > 0.5
         state = x[_INTERNAL.slice("disturbance")]
-        if not ramping:
+        if not (ramping or self._reference_held(context)):
             state = disturbance.integrate(state, e_p, eta, self._period,
                                           self._disturbance_gains(context), self._limits)
         m_e = disturbance.estimated_mass(self._vehicle.mass, state)
@@ -221,6 +226,11 @@ class ForceController(Controller):
             self._vehicle.mass, state, eta))
         discrete_state.set_value(self._internal, x)
         discrete_state.set_value(self._status, status_vector(reason, solver_status))
+
+    def _reference_held(self, context) -> bool:
+        """The active tracker holds the reference back by admittance (M Sec. 4.2)."""
+        return self._tracker_status.HasValue(context) and TRACKER_STATUS.get(
+            self._tracker_status.Eval(context), "reason") == ADMITTANCE_HOLD
 
     def _predict(self, context, estimate, now) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity and orientation R_EB of the estimate predicted from its stamp to

@@ -233,7 +233,9 @@ class ControlManager(CommandSwitch):
             `desired_acceleration` (3) the active controller's unbiased desired acceleration
             M(53) [m/s^2, in E] (NaN when it has none: the estimator bank's input, M Sec. 3.1.1);
             `reference` REFERENCE (what the controllers track and every tracker's
-            `last_reference`: the goal, the safety hold or the emergency descent); `NAME.active`
+            `last_reference`: the goal, the safety hold or the emergency descent);
+            `tracker_status` TRACKER_STATUS (the active tracker's, NaN when none: controllers
+            with that input hold their integrators while it is ADMITTANCE_HOLD); `NAME.active`
             (1) per controller and per tracker; `manager_status` MANAGER_STATUS
     Each `NAME.port` input is fed by that controller's or tracker's `port` output, and
     `NAME.active` feeds its `active` input. Updated every `period` (100 Hz by default), together
@@ -306,6 +308,8 @@ class ControlManager(CommandSwitch):
                                      {self.all_input_ports_ticket(), self.all_state_ticket()})
         self.DeclareVectorOutputPort("reference", REFERENCE.size, self._calc_reference,
                                      everything)
+        self.DeclareVectorOutputPort("tracker_status", TRACKER_STATUS.size,
+                                     self._calc_tracker_status, everything)
         for i, name in enumerate(self.names):
             self.DeclareVectorOutputPort(
                 f"{name}.active", 1, lambda context, output, i=i: output.SetFromVector(
@@ -346,6 +350,13 @@ class ControlManager(CommandSwitch):
 
     def _calc_reference(self, context, output):
         output.SetFromVector(self._decide(context).reference)
+
+    def _calc_tracker_status(self, context, output):
+        """The status of the tracker whose reference `reference` forwards; NaN when none does
+        (no trackers, the `goal` input, or outside NORMAL mode)."""
+        k = self._tracker_after(context) if self.trackers else -1
+        output.SetFromVector(self._tracker_statuses[k].Eval(context) if k >= 0
+                             else np.full(TRACKER_STATUS.size, np.nan))
 
     def _calc_status(self, context, output):
         x = context.get_discrete_state(self._state).get_value()

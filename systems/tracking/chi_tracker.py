@@ -14,7 +14,7 @@ import enum
 
 import numpy as np
 
-from alight.systems.boundary import REFERENCE
+from alight.systems.boundary import ADMITTANCE_HOLD, REFERENCE
 from alight.systems.control.force_controller import advance_reference
 from alight.systems.estimation.frames import reexpress_point
 from alight.systems.estimation.heading import wrap_angle
@@ -32,7 +32,7 @@ class ChiReason(enum.IntEnum):
     BAD_START = 4     # cannot start: no finite last reference and no valid estimate
     BAD_GOAL = 5      # a goal the parameters refuse (named in the docstrings): ignored, holding
     TAKING_OFF = 6
-    ADMITTANCE = 7    # the take-off reference is held: it would run too far from the estimate
+    ADMITTANCE = ADMITTANCE_HOLD  # the take-off reference is held: too far from the estimate
     LANDING = 8
     LANDED = 9        # touchdown detected (M(34)): disarm
     SATURATED = 10    # a speed goal clipped to the tracker's limits
