@@ -13,8 +13,9 @@ from alight.diagrams.onboard.control_manager import load_control_manager_config
 from alight.diagrams.onboard.landing_managed import landing_manager_config
 from alight.diagrams.running.run_log import RunLog
 from alight.systems.managers.control_manager import ManagerMode
-from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode
+from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode, Reason
 from alight.systems.mission.landing_requests import LandingRequests
+from alight.systems.boundary import REFERENCE
 from alight.systems.params import ConfigError
 from alight.systems.tracking.landoff_tracker import LandoffGoal
 from alight.systems.tracking.target_tracker import TargetGoal
@@ -70,10 +71,13 @@ def test_the_modes_are_flown_by_the_trackers_the_control_manager_switches_to(lan
     assert len(p2) > 50 and p2["v_2"].max() < -1.5                  # descending_p2 1.8 m/s
 
 
-def _requests_at(dut, mode: Mode, transitions: int, arm=(1.0, 1.0)):
+def _requests_at(dut, mode: Mode, transitions: int, arm=(1.0, 1.0), reason=0,
+                 reference=np.full(3, np.nan)):
     context = dut.CreateDefaultContext()
+    dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
+        stamp=0.0, p=reference, v=0.0, a=0.0, j=0.0, heading=0.0, heading_rate=0.0))
     dut.GetInputPort("mission_status").FixValue(context, MISSION_STATUS.pack(
-        mode=mode, reason=0, transition_time=0.0, transitions=transitions,
+        mode=mode, reason=reason, transition_time=0.0, transitions=transitions,
         first_detection=np.nan, last_detection=np.nan, e_xy=np.nan, sigma_xy=np.nan,
         predicted_miss=np.nan))
     dut.GetInputPort("arm").FixValue(context, list(arm))
@@ -100,6 +104,17 @@ def test_requests_map_the_mission_modes_to_trackers_and_goals():
         np.testing.assert_array_equal(out["tracker_request"], [6.0, 3.0])   # target
         assert out["target_goal"] == goal
     assert _requests_at(dut, Mode.WAYPOINT, 2)["target_goal"] is None
+    # Beyond the paper: home over the take-off point on the MPC tracker, landed by landoff.
+    home = np.array([1.0, -6.0, 5.4])
+    returning = _requests_at(dut, Mode.RETURNING, 3, reference=home)
+    np.testing.assert_array_equal(returning["tracker_request"], [4.0, 0.0])  # mpc_tracker
+    np.testing.assert_array_equal(returning["trajectory_goal"].samples[0, :3], home)
+    landing = _requests_at(dut, Mode.LANDING_HOME, 4)
+    np.testing.assert_array_equal(landing["tracker_request"], [5.0, 1.0])    # landoff
+    assert landing["landoff_goal"] == LandoffGoal.land()
+    landed = _requests_at(dut, Mode.LANDED, 5, arm=(0.0, 0.0), reason=Reason.ON_THE_GROUND)
+    np.testing.assert_array_equal(landed["tracker_request"], [6.0, 1.0])     # stays landoff
+    assert landed["landoff_goal"] is None
     with pytest.raises(ValueError, match="target_tracker 'landing'"):
         LandingRequests(params, TRACKERS, target_tracker="landing")
     with pytest.raises(ConfigError, match="failsafe"):

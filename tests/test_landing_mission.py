@@ -174,6 +174,47 @@ def test_target_that_cannot_be_caught_never_triggers_a_landing_phase():
     assert all(m not in (Mode.LANDING_P1, Mode.LANDING_P2, Mode.LANDED) for _, m, _ in events)
 
 
+def test_a_target_never_found_sends_the_vehicle_home_to_land_and_disarm():
+    """No detection for `search_timeout` at the waypoint: back over the take-off point at the
+    take-off height, down at the take-off velocity, Landed (disarmed) on the ground there."""
+    params = LandingMissionParams(search_timeout=5.0)
+    logs = fly(lambda t: None, 45.0, params=params)
+    events = transitions(logs)
+    assert [(m, r) for _, m, r in events] == [
+        (Mode.TAKING_OFF, Reason.ESTIMATE_VALID), (Mode.WAYPOINT, Reason.TAKEOFF_HEIGHT),
+        (Mode.RETURNING, Reason.SEARCH_TIMEOUT), (Mode.LANDING_HOME, Reason.OVER_HOME),
+        (Mode.LANDED, Reason.ON_THE_GROUND)]
+    times = {m: t for t, m, _ in events}
+    assert times[Mode.RETURNING] - times[Mode.WAYPOINT] == pytest.approx(5.0, abs=0.051)
+    t_ref, reference = logs["reference"]
+    p_ref = reference[:, REFERENCE.slice("p")]
+    home = np.array([0.0, -6.0, 0.22 + params.takeoff_height])   # the scripted start + 5.2 m
+    returning = (t_ref > times[Mode.RETURNING] + 0.06) & (t_ref < times[Mode.LANDING_HOME])
+    np.testing.assert_allclose(p_ref[returning], np.tile(home, (returning.sum(), 1)))
+    descending = (t_ref > times[Mode.LANDING_HOME] + 0.5) & (t_ref < times[Mode.LANDED] - 2.0)
+    assert np.all(p_ref[descending, :2] == home[:2])
+    assert np.diff(p_ref[descending, 2]).mean() / params.period == pytest.approx(-0.5, rel=1e-6)
+    t, arm = logs["arm"]
+    assert np.all(arm[t > times[Mode.LANDED] + 0.06] == 0.0)
+    assert np.all(arm[(t > 2.0) & (t < times[Mode.LANDED] - 0.06), 0] == 1.0)
+
+
+def test_a_target_seen_while_returning_is_followed():
+    """The vehicle (scripted) hovers 3 m from its take-off point, never back over it: a detection
+    while Returning resumes Follow."""
+    params = LandingMissionParams(search_timeout=5.0)
+    away = lambda t: (np.array([0.0, 0.0, 0.22]) if t < 2.0 else np.array([3.0, 0.0, 5.42]),
+                      np.zeros(3))
+    quiet = transitions(fly(lambda t: None, 30.0, vehicle=away, params=params))
+    assert [m for _, m, _ in quiet] == [Mode.TAKING_OFF, Mode.WAYPOINT, Mode.RETURNING]
+    returning = quiet[-1][0]
+    events = transitions(fly(moving_target(0.5, appear=returning + 1.0), 30.0, vehicle=away,
+                             params=params))
+    assert [(m, r) for _, m, r in events][2:] == [(Mode.RETURNING, Reason.SEARCH_TIMEOUT),
+                                                 (Mode.FOLLOW, Reason.DETECTION)]
+    assert events[3][0] == pytest.approx(returning + 1.0, abs=0.051)
+
+
 def test_reference_generation_predicts_and_low_passes_the_target():
     p, v = filter_reference(np.zeros(3), np.zeros(3), np.array([1.0, 2.0, 1.0]),
                             np.array([0.0, 4.0, 0.0]), 0.1, 30.0, 30.0, 0.05)

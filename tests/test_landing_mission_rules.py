@@ -130,3 +130,37 @@ def test_tracking_error_at_the_phase_2_boundary_aborts_every_attempt():
     sigma = status[at_abort, MISSION_STATUS.slice("sigma_xy")][0]
     assert 3 * sigma < 0.2                                   # not the target's uncertainty
     assert status[at_abort, MISSION_STATUS.slice("predicted_miss")][0] > 0.6
+
+
+@pytest.mark.mission
+def test_a_car_never_found_ends_with_a_gentle_landing_at_the_take_off_point(tmp_path):
+    """The field scenario with the car far away (it reaches the waypoint at 500 s) and an 8 s
+    search: the vehicle returns over its take-off point, lands on the ground there at the take-off
+    velocity and disarms (before: it hovered at the waypoint until the run ran out)."""
+    scenario = load_scenario("field", overrides=[
+        "random_seed: 0", "target_motion.approach_time: 500.0", "mission.search_timeout: 8.0",
+        "simulator.max_duration: 45.0"])
+    run = run_scenario(scenario, run_dir=tmp_path / "home")
+    events = mission_transitions(run)
+    assert [(m, r) for _, m, r in events][1:] == [
+        (Mode.WAYPOINT, Reason.TAKEOFF_HEIGHT), (Mode.RETURNING, Reason.SEARCH_TIMEOUT),
+        (Mode.LANDING_HOME, Reason.OVER_HOME), (Mode.LANDED, Reason.ON_THE_GROUND)], events
+    truth = run["ground_truth"]
+    p_B = run.field("ground_truth", "p_WB").to_numpy()
+    start = scenario.vehicle.initial_position
+    assert np.hypot(*(p_B[-1, :2] - start)) < 0.1                  # at the take-off point
+    assert abs(p_B[-1, 2] - p_B[0, 2]) < 0.01                       # on its legs
+    assert truth["legs_ground_force"].iloc[-1] > 0.0
+    assert truth["other_contact_time"].iloc[-1] == 0.0
+    # the descent at the take-off velocity (0.5 m/s): touchdown under 0.6 m/s, legs far from
+    # their structural limit (measured: 0.47 m/s, 31 N of 180 N)
+    score = score_landing(run, scenario.scoring.impact.vertical_speed,
+                          scenario.scoring.impact.horizontal_speed)
+    assert not score.success and "search timeout" in score.reason
+    touchdown = np.flatnonzero(np.diff(truth["legs_ground_time"].to_numpy()) > 0)
+    touchdown = touchdown[truth["time"].to_numpy()[touchdown] > 5.0][0]
+    assert -truth["v_WB_2"].iloc[touchdown] < 0.6
+    assert truth["peak_leg_force"].iloc[-1] < 60.0
+    landed_at = events[-1][0]
+    fc = run["fc_status"]
+    assert fc["armed"][fc["time"] > landed_at + 0.2].max() == 0.0

@@ -115,6 +115,8 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
         reason = "no detection" if np.isnan(first_detection) else "no touchdown in time"
         return failed(reason, len(t) - 1)
     if on_ground[touchdown] or collided[touchdown]:
+        if not collided[touchdown] and (status["reason"] == Reason.SEARCH_TIMEOUT).any():
+            return failed(RETURNED_HOME, touchdown)     # no target: no error to it
         return failed("touched the ground" if on_ground[touchdown] else COLLIDED, touchdown,
                       touchdown)
     vertical = _descent_speed(v_B, v_T, touchdown)
@@ -158,6 +160,7 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
 
 
 COLLIDED = "hit the car or touched with the airframe"
+RETURNED_HOME = "landed at the take-off point: no target found within the search timeout"
 
 
 def _descent_speed(v_B: np.ndarray, v_T: np.ndarray, touchdown: int) -> float:

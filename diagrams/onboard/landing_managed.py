@@ -92,6 +92,7 @@ def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: Landin
     builder.Connect(mission.GetOutputPort("mission_status"),
                     requests.GetInputPort("mission_status"))
     builder.Connect(mission.GetOutputPort("arm"), requests.GetInputPort("arm"))
+    builder.Connect(mission.GetOutputPort("reference"), requests.GetInputPort("reference"))
     goals = {kind: requests.GetOutputPort(f"{kind}_goal")
              for kind in ("trajectory", "landoff", "target")}
     managed = add_control_manager(builder, config, controllers_config, estimate, goals=goals,

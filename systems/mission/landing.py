@@ -33,6 +33,15 @@ velocity noise density; the position-velocity cross-covariance is not in the est
   above the target under `landed_offset`: Landed.
 - Landed: disarm.
 
+Beyond the paper (its field tests end the flight by hand; a vehicle must not hover at the waypoint
+until its battery dies):
+- Waypoint for `search_timeout` without a detection (the first search, or after a loss):
+  Returning: fly to `takeoff_height` above the take-off point (within `landed_offset`, slower
+  than `velocity_threshold`), then Landing Home: descend at `takeoff_velocity`
+  to the ground, Landed when the estimate is within `home_touchdown` of the take-off height and
+  slower than `home_touchdown` per s vertically. A detection while Returning resumes Follow;
+  Landing Home is not cancelled.
+
 Every transition is counted and published with its time and reason on `mission_status`.
 Positions are those of the state estimate's frame E, in which the target estimate is expressed.
 """
@@ -74,6 +83,8 @@ class LandingMissionParams:
     start_delay: float = bounded(1.0, 0.0, 60.0, "s")           # settle before arming
     arm_time: float = bounded(0.5, 0.0, 10.0, "s")              # rotors idle before lift-off
     heading: float = bounded(0.0, -360.0, 360.0, "deg")         # psi_r (zero in the paper)
+    search_timeout: float = bounded(30.0, 1.0, 3600.0, "s")     # at the waypoint, then home
+    home_touchdown: float = bounded(0.1, 0.01, 1.0, "m")         # on the ground at home within
 
 
 def horizontal_sigma(target: np.ndarray, t_ahead: float, velocity_noise: float) -> float:
@@ -102,6 +113,8 @@ class Mode(enum.IntEnum):
     LANDING_P1 = 4
     LANDING_P2 = 5
     LANDED = 6
+    RETURNING = 7     # beyond the paper: to the take-off point after `search_timeout`
+    LANDING_HOME = 8
 
 
 class Reason(enum.IntEnum):
@@ -114,6 +127,9 @@ class Reason(enum.IntEnum):
     BELOW_P2_OFFSET = 6       # Landing Phase 1 -> Landing Phase 2
     BELOW_LANDED_OFFSET = 7   # Landing Phase 2 -> Landed
     PREDICTED_MISS = 8        # Landing Phase 1 -> Follow: predicted miss over miss_limit
+    SEARCH_TIMEOUT = 9        # Waypoint -> Returning: no detection for search_timeout
+    OVER_HOME = 10            # Returning -> Landing Home
+    ON_THE_GROUND = 11        # Landing Home -> Landed
 
 
 # Output `mission_status`: mode (Mode); reason (Reason) and time [s] of the last transition; the
@@ -174,7 +190,7 @@ class LandingMission(LeafSystem):
 
     def _calc_arm(self, context, output):
         mode = self._mode(context)
-        airborne = Mode.TAKING_OFF <= mode < Mode.LANDED
+        airborne = mode not in (Mode.IDLE, Mode.LANDED)
         lift_off = context.get_time() >= _STATE.get(self._x(context), "transition_time") \
             + self._p.arm_time or mode != Mode.TAKING_OFF
         output.SetFromVector([float(airborne), float(airborne and lift_off)])
@@ -285,12 +301,28 @@ class LandingMission(LeafSystem):
                               [0.0, 0.0, p.takeoff_velocity if z < goal else 0.0])
                 if z >= goal and abs(p_B[2] - goal) < p.takeoff_tolerance:
                     go(Mode.WAYPOINT, Reason.TAKEOFF_HEIGHT)
-        elif mode == Mode.WAYPOINT:
-            set_reference(p.waypoint, np.zeros(3))
+        elif mode in (Mode.WAYPOINT, Mode.RETURNING):
+            home = _STATE.get(x, "start") + [0.0, 0.0, p.takeoff_height]
+            set_reference(p.waypoint if mode == Mode.WAYPOINT else home, np.zeros(3))
             if fresh:
                 go(Mode.FOLLOW, Reason.DETECTION)
                 start_following()
                 follow_target(0.0)
+            elif mode == Mode.WAYPOINT and now - _STATE.get(x, "transition_time") \
+                    >= p.search_timeout:
+                go(Mode.RETURNING, Reason.SEARCH_TIMEOUT)
+                set_reference(home, np.zeros(3))
+            elif mode == Mode.RETURNING and np.linalg.norm(p_B - home) <= p.landed_offset \
+                    and np.linalg.norm(v_B) <= p.velocity_threshold:
+                go(Mode.LANDING_HOME, Reason.OVER_HOME)
+        elif mode == Mode.LANDING_HOME:
+            start = _STATE.get(x, "start")
+            floor = start[2] - 0.5   # pressed on the ground, not through it
+            z = max(_STATE.get(x, "p_ref")[2] - p.takeoff_velocity * p.period, floor)
+            set_reference([start[0], start[1], z],
+                          [0.0, 0.0, -p.takeoff_velocity if z > floor else 0.0])
+            if p_B[2] - start[2] <= p.home_touchdown and abs(v_B[2]) <= p.home_touchdown:
+                go(Mode.LANDED, Reason.ON_THE_GROUND)
         elif mode in (Mode.FOLLOW, Mode.LANDING_P1):
             if not tracked:   # really lost: search from the waypoint (L Sec. 6.4)
                 go(Mode.WAYPOINT, Reason.TARGET_LOST)

@@ -8,6 +8,8 @@ mode and arm request turned into the control manager's requests and the trackers
 | Waypoint            | mpc_tracker       | the waypoint at the mission's heading         |
 | Follow              | target            | follow at the height held (L Sec. 6.3)        |
 | Landing Phase 1 / 2 | target            | descend at `descending_p1` / `descending_p2`  |
+| Returning           | mpc_tracker       | the mission's reference: over the take-off    |
+| Landing Home        | landoff           | land                                          |
 | Landed              | (unchanged)       | disarm                                        |
 
 The tracker request's id is the mission's transition count plus one: every mode change is a new
@@ -20,15 +22,17 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode
+from alight.systems.boundary import REFERENCE
+from alight.systems.mission.landing import MISSION_STATUS, LandingMissionParams, Mode, Reason
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.landoff_tracker import LandoffGoal
 from alight.systems.tracking.target_tracker import TargetGoal
 
 
 class LandingRequests(LeafSystem):
-    """Inputs  `mission_status` MISSION_STATUS; `arm` (2) [arm request, thrust enable] of the
-            mission (alight.systems.mission.landing.LandingMission)
+    """Inputs  `mission_status` MISSION_STATUS; `arm` (2) [arm request, thrust enable];
+            `reference` REFERENCE of the mission (alight.systems.mission.landing.LandingMission):
+            its position is the Returning goal
     Outputs `tracker_request` (2) [id, index] for the control manager; `trajectory_goal`
             TrackerGoal, `landoff_goal` LandoffGoal or None, `target_goal` TargetGoal or None
             (abstract) for the trackers of those goal kinds
@@ -52,17 +56,23 @@ class LandingRequests(LeafSystem):
                          Mode.FOLLOW: index["target_tracker"],
                          Mode.LANDING_P1: index["target_tracker"],
                          Mode.LANDING_P2: index["target_tracker"],
-                         Mode.LANDED: index["target_tracker"]}
+                         Mode.LANDED: index["target_tracker"],
+                         Mode.RETURNING: index["waypoint_tracker"],
+                         Mode.LANDING_HOME: index["takeoff_tracker"]}
+        self._home_tracker = index["takeoff_tracker"]
         self._waypoint = TrackerGoal.point(params.waypoint, np.radians(params.heading))
         self._takeoff = LandoffGoal.takeoff(params.takeoff_height)
+        self._landing = LandoffGoal.land()
         self._target = {Mode.FOLLOW: TargetGoal.follow(),
                         Mode.LANDING_P1: TargetGoal.descend(params.descending_p1),
                         Mode.LANDING_P2: TargetGoal.descend(params.descending_p2)}
         self._status = self.DeclareVectorInputPort("mission_status", MISSION_STATUS.size)
         self._arm = self.DeclareVectorInputPort("arm", 2)
+        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self._heading = np.radians(params.heading)
         self.DeclareVectorOutputPort("tracker_request", 2, self._calc_tracker_request)
         self.DeclareAbstractOutputPort("trajectory_goal", lambda: AbstractValue.Make(None),
-                                       lambda c, o: o.set_value(self._waypoint))
+                                       self._calc_trajectory_goal)
         self.DeclareAbstractOutputPort("landoff_goal", lambda: AbstractValue.Make(None),
                                        self._calc_landoff_goal)
         self.DeclareAbstractOutputPort("target_goal", lambda: AbstractValue.Make(None),
@@ -73,9 +83,21 @@ class LandingRequests(LeafSystem):
 
     def _calc_tracker_request(self, context, output):
         status = self._status.Eval(context)
+        mode = self._mode(context)
+        home = mode == Mode.LANDED and MISSION_STATUS.get(status, "reason") == Reason.ON_THE_GROUND
         output.SetFromVector([MISSION_STATUS.get(status, "transitions") + 1.0,
-                              self._tracker[self._mode(context)]])
+                              self._home_tracker if home else self._tracker[mode]])
+
+    def _calc_trajectory_goal(self, context, output):
+        if self._mode(context) != Mode.RETURNING:
+            return output.set_value(self._waypoint)
+        home = REFERENCE.get(self._reference.Eval(context), "p")
+        output.set_value(TrackerGoal.point(home, self._heading) if np.all(np.isfinite(home))
+                         else self._waypoint)
 
     def _calc_landoff_goal(self, context, output):
-        lift_off = self._mode(context) >= Mode.TAKING_OFF and self._arm.Eval(context)[1] > 0.5
+        mode = self._mode(context)
+        if mode in (Mode.LANDING_HOME, Mode.LANDED):
+            return output.set_value(self._landing if mode == Mode.LANDING_HOME else None)
+        lift_off = mode >= Mode.TAKING_OFF and self._arm.Eval(context)[1] > 0.5
         output.set_value(self._takeoff if lift_off else None)
