@@ -116,7 +116,9 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
         return failed(reason, len(t) - 1)
     if on_ground[touchdown] or collided[touchdown]:
         if not collided[touchdown] and (status["reason"] == Reason.SEARCH_TIMEOUT).any():
-            return failed(RETURNED_HOME, touchdown)     # no target: no error to it
+            return LandingScore(False, RETURNED_HOME, speed(touchdown), nan, nan,   # no target
+                                float(t[touchdown]), _descent_speed(v_B, np.zeros_like(v_B),
+                                                                    touchdown), peak_leg_force)
         return failed("touched the ground" if on_ground[touchdown] else COLLIDED, touchdown,
                       touchdown)
     vertical = _descent_speed(v_B, v_T, touchdown)

@@ -22,6 +22,7 @@ follow its commands) a vertical estimate would wind up. Gain 0 is the paper's co
 """
 import dataclasses as dc
 import enum
+import math
 
 import numpy as np
 from pydrake.math import RollPitchYaw
@@ -175,11 +176,21 @@ class LinearMpcQp:
             np.hstack([self.GGamma, -np.kron(np.eye(num_slacks), np.ones((2, 1)))]),
             np.full(len(self.h), -np.inf),
             self.h.copy(), np.concatenate([self.u, self.s]))
+        # Per-tick data as products of the state, references and disturbance with matrices formed
+        # once (the linear cost term 2 f and the soft rows' upper bound of update()).
+        GammaW = self.Gamma.T * self.W
+        self._cost_x0, self._cost_d = 2.0 * GammaW @ self.Phi, 2.0 * GammaW @ self.Psi
+        self._cost_s_y, self._cost_s_u = -2.0 * GammaW, -2.0 * self.Rw
+        self._cost_previous = -2.0 * self.D[:NUM_INPUTS].T * self.Wd[:NUM_INPUTS]
+        G_state = self.G_bar
+        self._bound_x0, self._bound_d = G_state @ self.Phi, G_state @ self.Psi
+        self._bound = self.h.copy()
         self._u_index = np.asarray(self.prog.FindDecisionVariableIndices(self.u), np.intp)
         self._s_index = np.asarray(self.prog.FindDecisionVariableIndices(self.s), np.intp)
         self.persistent = PersistentOsqp(self.prog, p.osqp_eps) if p.solver == "persistent" \
             else PersistentDaqp(self.prog, p.slack_regularization) if p.solver == "daqp" \
             else None
+        self.last: QpResult | None = None  # the last solve's result (iterations: bench)
         self.solver = OsqpSolver()
         self.options = SolverOptions()
         for name, value in (("eps_abs", p.osqp_eps), ("eps_rel", p.osqp_eps),
@@ -191,24 +202,32 @@ class LinearMpcQp:
         """New linear cost term and soft bounds for the state x0, the references (N*n, N*m), the
         input applied last tick (None: no move suppression of the first input) and the estimated
         acceleration disturbance d (N frame)."""
-        free = self.Phi @ x0 + self.Psi @ d  # the predicted states with zero inputs
-        f = self.Gamma.T @ (self.W * (free - s_y)) - self.Rw * s_u
+        # 2 f with f = Gamma^T W (free - s_y) - Rw s_u [- D^T (Wd * [u_previous, 0...])], free =
+        # Phi x0 + Psi d the predicted states with zero inputs; the soft rows' bound h - G free.
+        cost = self._cost_x0 @ x0 + self._cost_s_y @ s_y + self._cost_s_u * s_u
+        if d.any():
+            cost += self._cost_d @ d
         if u_previous is not None:  # D^T (Wd * e) with e = [u_previous, 0...]: first block only
-            f -= self.D[:NUM_INPUTS].T @ (self.Wd[:NUM_INPUTS] * u_previous)
-        self.cost.evaluator().UpdateCoefficients(2.0 * f)
-        bound = self.h.copy()
-        bound[:self.num_state_rows] -= (free.reshape(self.N, NUM_STATES) @ self._G.T).ravel()
+            cost += self._cost_previous @ u_previous
+        self.cost.evaluator().UpdateCoefficients(cost)
+        bound = self._bound
+        bound[:] = self.h
+        bound[:self.num_state_rows] -= self._bound_x0 @ x0
+        if d.any():
+            bound[:self.num_state_rows] -= self._bound_d @ d
         self.soft.evaluator().UpdateUpperBound(bound)
 
     def solve(self) -> QpResult:
         """Solves the program with its current data; `inputs(result)`, `slacks(result)`."""
         if self.persistent is not None:
-            return self.persistent.solve()
+            self.last = self.persistent.solve()
+            return self.last
         result = self.solver.Solve(self.prog, None, self.options)
         x = result.GetSolution(self.prog.decision_variables())
         details = result.get_solver_details()
-        return QpResult(result.is_success() and bool(np.all(np.isfinite(x))), x,
-                        int(details.status_val), int(details.iter))
+        self.last = QpResult(result.is_success() and bool(np.isfinite(x).all()), x,
+                             int(details.status_val), int(details.iter))
+        return self.last
 
     def inputs(self, result: QpResult) -> np.ndarray:
         """(N, 3) planned inputs [pitch_r, roll_r, T_r]."""
@@ -216,6 +235,16 @@ class LinearMpcQp:
 
     def slacks(self, result: QpResult) -> np.ndarray:
         return result.x[self._s_index]
+
+
+def roll_pitch_yaw_quaternion(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """wxyz of RollPitchYaw(roll, pitch, yaw).ToQuaternion() (R = Rz(yaw) Ry(pitch) Rx(roll)),
+    from the half angles with scalar math: the Drake call cost a tenth of an N = 2 tick."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return np.array([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                     cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy])
 
 
 def carrot(p: np.ndarray, p_ref: np.ndarray, max_distance: float) -> np.ndarray:
@@ -263,10 +292,11 @@ class LinearMpc(Controller):
     def _to_command(self, u: np.ndarray, stamp: float, heading: float) -> np.ndarray:
         """Attitude from the commanded pitch/roll and the reference heading; thrust with the
         gravity feedforward and tilt compensation through the thrust curve M(32)."""
-        pitch, roll, thrust_acceleration = u
-        force = self._model.mass * (GRAVITY + thrust_acceleration) / (np.cos(pitch) * np.cos(roll))
+        pitch, roll, thrust_acceleration = (float(value) for value in u)
+        force = self._model.mass * (GRAVITY + thrust_acceleration) \
+            / (math.cos(pitch) * math.cos(roll))
         return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
-                               q_WD=RollPitchYaw(roll, pitch, heading).ToQuaternion().wxyz(),
+                               q_WD=roll_pitch_yaw_quaternion(roll, pitch, heading),
                                w_D=np.zeros(3), thrust=float(self._curve.thrust(force)), arm=1.0)
 
     def references(self, reference: np.ndarray, yaw: float,
@@ -296,7 +326,7 @@ class LinearMpc(Controller):
         now = context.get_time()
         reference = self._reference.Eval(context)
         heading = float(REFERENCE.get(reference, "heading"))
-        if estimate is None or not np.all(np.isfinite(reference)):
+        if estimate is None or not np.isfinite(reference).all():
             self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0)
             return
         # Position and velocity from odometry; attitude and rates from the flight controller's
@@ -314,14 +344,15 @@ class LinearMpc(Controller):
         d_W = self._estimate_disturbance(context, STATE_ESTIMATE.get(estimate, "v_EB"))
         d_N = rotate_to_navigation(d_W, yaw)
         self._qp.update(x0, *self.references(reference, yaw, d_N),
-                        previous if np.all(np.isfinite(previous)) else None, d_N)
+                        previous if np.isfinite(previous).all() else None, d_N)
         result = self._qp.solve()
         solver_status = result.status
         if not result.ok:
             self._fail(context, discrete_state, now, heading, MpcReason.FALLBACK, solver_status)
             return
         u = self._qp.inputs(result)
-        v_next_N = (self._qp.Ad @ x0 + self._qp.Bd @ u[0] + self._qp.Ed @ d_N)[3:6]
+        qp = self._qp
+        v_next_N = qp.Ad[3:6] @ x0 + qp.Bd[3:6] @ u[0] + qp.Ed[3:6] @ d_N
         discrete_state.set_value(self._disturbance, np.concatenate(
             [d_W, rotate_to_navigation(v_next_N, -yaw)]))
         discrete_state.set_value(self._command, self._to_command(u[0], now, heading))

@@ -8,6 +8,11 @@ and constraint bounds, hands them to OSQP's `update` and solves from the previou
 solution. The program stays the single description of the QP (quadratic and linear costs, linear
 and bounding-box constraints); its Hessian and constraint matrices must not change after
 construction.
+
+Per tick the workspace is driven through the osqp extension's solver object itself (its
+`update_data_vec`, `solve`, `info`, `solution`), the calls the `osqp.OSQP` wrapper makes, without
+the wrapper's per-call bookkeeping (a settings-constant lookup per bound vector, a namespace of all
+info fields, the derivative cache): at N = 2 that bookkeeping cost as much as OSQP's solve.
 """
 import numpy as np
 import osqp
@@ -35,17 +40,35 @@ class PersistentOsqp:
                           q=self.qp.q(), A=sparse.csc_matrix(self.qp.A), l=lower, u=upper,
                           eps_abs=eps, eps_rel=eps, max_iter=max_iter, polishing=polishing,
                           warm_starting=True, verbose=False)
+        # The extension's solver object (what osqp.OSQP.update/solve call); None: use the wrapper
+        self._workspace = getattr(self.solver, "_solver", None)
+        if self._workspace is not None and not all(
+                hasattr(self._workspace, name)
+                for name in ("update_data_vec", "solve", "info", "solution")):
+            self._workspace = None
+        self.iterations = 0  # of the last solve
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lower, upper = self.qp.bounds()
-        return np.maximum(lower, -INFINITY), np.minimum(upper, INFINITY)
+        np.maximum(lower, -INFINITY, out=lower)
+        np.minimum(upper, INFINITY, out=upper)
+        return lower, upper
 
     def solve(self) -> QpResult:
         """Solves with the program's current linear cost terms and bounds, warm-started."""
         lower, upper = self._bounds()
-        self.solver.update(q=self.qp.q(), l=lower, u=upper)
-        result = self.solver.solve(raise_error=False)  # the status says what failed
-        status = int(result.info.status_val)
-        x = np.asarray(result.x, float)
-        ok = status in SOLVED and x.shape == (self.qp.num_vars,) and np.all(np.isfinite(x))
-        return QpResult(ok, x, status, int(result.info.iter))
+        workspace = self._workspace
+        if workspace is None:
+            self.solver.update(q=self.qp.q(), l=lower, u=upper)
+            result = self.solver.solve(raise_error=False)  # the status says what failed
+            status, iterations = int(result.info.status_val), int(result.info.iter)
+            x = np.asarray(result.x, float)
+        else:
+            workspace.update_data_vec(q=self.qp.q(), l=lower, u=upper)
+            workspace.solve()
+            info = workspace.info
+            status, iterations = int(info.status_val), int(info.iter)
+            x = np.asarray(workspace.solution.x, float)  # (a fresh copy per access)
+        self.iterations = iterations
+        ok = status in SOLVED and x.shape == (self.qp.num_vars,) and bool(np.isfinite(x).all())
+        return QpResult(ok, x, status, iterations)
