@@ -48,6 +48,7 @@ class Replay:
     failed: int              # ticks whose QP failed (fallback or hover command)
     command_error: float     # max |u_0 - u_0 exact| over the ticks [rad, m/s^2] (NaN: unchecked)
     plan_error: float        # the same over the whole planned inputs
+    iterations: np.ndarray   # the QP back end's iterations per tick (-1: no solve that tick)
 
 
 def tick_inputs(run) -> list[dict[str, np.ndarray]]:
@@ -85,7 +86,7 @@ def replay(ticks, horizon: int, solver: str, check: bool = False) -> Replay:
     mpc.GetInputPort("active").FixValue(context, [1.0])
     ports = [mpc.GetInputPort(name) for name in INPUTS]
     status, prediction = mpc.GetOutputPort("controller_status"), mpc.GetOutputPort("prediction")
-    cpu, failed, command_error, plan_error = [], 0, [], []
+    cpu, failed, command_error, plan_error, iterations = [], 0, [], [], []
     for inputs in ticks:
         for port, name in zip(ports, INPUTS):
             port.FixValue(context, inputs[name])
@@ -93,6 +94,8 @@ def replay(ticks, horizon: int, solver: str, check: bool = False) -> Replay:
         start = time.thread_time()
         context.SetDiscreteState(mpc.EvalUniquePeriodicDiscreteUpdate(context))
         cpu.append(time.thread_time() - start)
+        iterations.append(mpc._qp.last.iterations if mpc._qp.last is not None else -1)
+        mpc._qp.last = None
         if CONTROLLER_STATUS.get(status.Eval(context), "reason") != MpcReason.OK:
             failed += 1
         elif check:
@@ -100,7 +103,8 @@ def replay(ticks, horizon: int, solver: str, check: bool = False) -> Replay:
             command_error.append(error[0].max())
             plan_error.append(error.max())
     return Replay(mpc.compute_timer.seconds(), np.array(cpu), failed,
-                  max(command_error, default=np.nan), max(plan_error, default=np.nan))
+                  max(command_error, default=np.nan), max(plan_error, default=np.nan),
+                  np.array(iterations))
 
 
 def row(label: str, seconds: np.ndarray) -> str:
@@ -151,6 +155,14 @@ def main() -> None:
         print(f"N={horizon} {solver}: CPU mean / 709.53 us = "
               f"{result.cpu.mean() * 1e6 / PAPER_MEAN_US:.2f}, failed ticks {result.failed}"
               + checked)
+    for (horizon, solver), result in replays.items():
+        if solver == "drake" or horizon != 20:
+            continue
+        its, worst = result.iterations, np.argsort(result.cpu)[::-1][:5]
+        print(f"N=20 {solver}: iterations per tick mean {its.mean():.1f}, p99 "
+              f"{np.percentile(its, 99):.0f}, max {its.max()}; ticks over 1 ms CPU "
+              f"{int(np.sum(result.cpu > 1e-3))}; the 5 slowest ticks (CPU us / iterations): "
+              + ", ".join(f"{result.cpu[i] * 1e6:.0f}/{its[i]}" for i in worst))
     for horizon in horizons:
         base = replays.get((horizon, "persistent"))
         for solver in ("daqp", "drake"):

@@ -237,16 +237,6 @@ class LinearMpcQp:
         return result.x[self._s_index]
 
 
-def roll_pitch_yaw_quaternion(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """wxyz of RollPitchYaw(roll, pitch, yaw).ToQuaternion() (R = Rz(yaw) Ry(pitch) Rx(roll)),
-    from the half angles with scalar math: the Drake call cost a tenth of an N = 2 tick."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return np.array([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-                     cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy])
-
-
 def carrot(p: np.ndarray, p_ref: np.ndarray, max_distance: float) -> np.ndarray:
     """`p_ref`, moved toward `p` along the line between them until it is at most
     `max_distance` from `p`."""
@@ -296,7 +286,7 @@ class LinearMpc(Controller):
         force = self._model.mass * (GRAVITY + thrust_acceleration) \
             / (math.cos(pitch) * math.cos(roll))
         return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
-                               q_WD=roll_pitch_yaw_quaternion(roll, pitch, heading),
+                               q_WD=RollPitchYaw(roll, pitch, heading).ToQuaternion().wxyz(),
                                w_D=np.zeros(3), thrust=float(self._curve.thrust(force)), arm=1.0)
 
     def references(self, reference: np.ndarray, yaw: float,
