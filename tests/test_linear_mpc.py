@@ -87,6 +87,29 @@ def test_persistent_osqp_solves_the_same_program_as_drakes_osqp():
         np.testing.assert_allclose(u["persistent"], u["drake"], atol=2e-3)
 
 
+def test_persistent_osqp_driving_the_extension_equals_the_osqp_wrapper():
+    """The per-tick path that calls the osqp extension's solver object directly (no wrapper
+    bookkeeping) gives the wrapper's solutions bit for bit, warm start and iterations included,
+    also on ticks where the soft constraints are violated."""
+    params = load_linear_mpc()
+    direct, wrapped = (LinearMpcQp(load_linear_model(), params) for _ in range(2))
+    assert direct.persistent._workspace is not None
+    wrapped.persistent._workspace = None  # osqp.OSQP.update / .solve, as before
+    rng = np.random.default_rng(2)
+    N = params.horizon_steps
+    for tick in range(8):
+        x0 = rng.normal(0.0, [2, 2, 1, 3, 3, 1, 0.3, 0.3, 0.5, 0.5])
+        s_y, s_u = rng.normal(0.0, 0.5, N * 10), rng.normal(0.0, 0.1, N * 3)
+        results = []
+        for qp in (direct, wrapped):
+            qp.update(x0, s_y, s_u, np.array([0.05, -0.05, 0.0]) if tick else None)
+            results.append(qp.solve())
+        assert results[0].ok and results[1].ok
+        np.testing.assert_array_equal(results[0].x, results[1].x)
+        assert results[0].iterations == results[1].iterations > 0
+        assert direct.last is results[0] and direct.persistent.iterations == results[0].iterations
+
+
 def test_daqp_solves_the_same_program_as_clarabel_also_with_violated_soft_constraints():
     """The DAQP option (slacks regularized by 1e-3) against an interior-point solve of the same
     MathematicalProgram, over consecutive warm-started ticks, two of them far beyond the velocity

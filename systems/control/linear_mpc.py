@@ -22,7 +22,6 @@ follow its commands) a vertical estimate would wind up. Gain 0 is the paper's co
 """
 import dataclasses as dc
 import enum
-import math
 
 import numpy as np
 from pydrake.math import RollPitchYaw
@@ -176,15 +175,6 @@ class LinearMpcQp:
             np.hstack([self.GGamma, -np.kron(np.eye(num_slacks), np.ones((2, 1)))]),
             np.full(len(self.h), -np.inf),
             self.h.copy(), np.concatenate([self.u, self.s]))
-        # Per-tick data as products of the state, references and disturbance with matrices formed
-        # once (the linear cost term 2 f and the soft rows' upper bound of update()).
-        GammaW = self.Gamma.T * self.W
-        self._cost_x0, self._cost_d = 2.0 * GammaW @ self.Phi, 2.0 * GammaW @ self.Psi
-        self._cost_s_y, self._cost_s_u = -2.0 * GammaW, -2.0 * self.Rw
-        self._cost_previous = -2.0 * self.D[:NUM_INPUTS].T * self.Wd[:NUM_INPUTS]
-        G_state = self.G_bar
-        self._bound_x0, self._bound_d = G_state @ self.Phi, G_state @ self.Psi
-        self._bound = self.h.copy()
         self._u_index = np.asarray(self.prog.FindDecisionVariableIndices(self.u), np.intp)
         self._s_index = np.asarray(self.prog.FindDecisionVariableIndices(self.s), np.intp)
         self.persistent = PersistentOsqp(self.prog, p.osqp_eps) if p.solver == "persistent" \
@@ -202,19 +192,13 @@ class LinearMpcQp:
         """New linear cost term and soft bounds for the state x0, the references (N*n, N*m), the
         input applied last tick (None: no move suppression of the first input) and the estimated
         acceleration disturbance d (N frame)."""
-        # 2 f with f = Gamma^T W (free - s_y) - Rw s_u [- D^T (Wd * [u_previous, 0...])], free =
-        # Phi x0 + Psi d the predicted states with zero inputs; the soft rows' bound h - G free.
-        cost = self._cost_x0 @ x0 + self._cost_s_y @ s_y + self._cost_s_u * s_u
-        if d.any():
-            cost += self._cost_d @ d
+        free = self.Phi @ x0 + self.Psi @ d  # the predicted states with zero inputs
+        f = self.Gamma.T @ (self.W * (free - s_y)) - self.Rw * s_u
         if u_previous is not None:  # D^T (Wd * e) with e = [u_previous, 0...]: first block only
-            cost += self._cost_previous @ u_previous
-        self.cost.evaluator().UpdateCoefficients(cost)
-        bound = self._bound
-        bound[:] = self.h
-        bound[:self.num_state_rows] -= self._bound_x0 @ x0
-        if d.any():
-            bound[:self.num_state_rows] -= self._bound_d @ d
+            f -= self.D[:NUM_INPUTS].T @ (self.Wd[:NUM_INPUTS] * u_previous)
+        self.cost.evaluator().UpdateCoefficients(2.0 * f)
+        bound = self.h.copy()
+        bound[:self.num_state_rows] -= (free.reshape(self.N, NUM_STATES) @ self._G.T).ravel()
         self.soft.evaluator().UpdateUpperBound(bound)
 
     def solve(self) -> QpResult:
@@ -282,9 +266,8 @@ class LinearMpc(Controller):
     def _to_command(self, u: np.ndarray, stamp: float, heading: float) -> np.ndarray:
         """Attitude from the commanded pitch/roll and the reference heading; thrust with the
         gravity feedforward and tilt compensation through the thrust curve M(32)."""
-        pitch, roll, thrust_acceleration = (float(value) for value in u)
-        force = self._model.mass * (GRAVITY + thrust_acceleration) \
-            / (math.cos(pitch) * math.cos(roll))
+        pitch, roll, thrust_acceleration = u
+        force = self._model.mass * (GRAVITY + thrust_acceleration) / (np.cos(pitch) * np.cos(roll))
         return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
                                q_WD=RollPitchYaw(roll, pitch, heading).ToQuaternion().wxyz(),
                                w_D=np.zeros(3), thrust=float(self._curve.thrust(force)), arm=1.0)
@@ -341,8 +324,7 @@ class LinearMpc(Controller):
             self._fail(context, discrete_state, now, heading, MpcReason.FALLBACK, solver_status)
             return
         u = self._qp.inputs(result)
-        qp = self._qp
-        v_next_N = qp.Ad[3:6] @ x0 + qp.Bd[3:6] @ u[0] + qp.Ed[3:6] @ d_N
+        v_next_N = (self._qp.Ad @ x0 + self._qp.Bd @ u[0] + self._qp.Ed @ d_N)[3:6]
         discrete_state.set_value(self._disturbance, np.concatenate(
             [d_W, rotate_to_navigation(v_next_N, -yaw)]))
         discrete_state.set_value(self._command, self._to_command(u[0], now, heading))
