@@ -162,7 +162,7 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
 
 
 COLLIDED = "hit the car or touched with the airframe"
-RETURNED_HOME = "landed at the take-off point: no target found within the search timeout"
+RETURNED_HOME = "landed at the take-off point: no target seen within the search timeout"
 
 
 def _descent_speed(v_B: np.ndarray, v_T: np.ndarray, touchdown: int) -> float:
