@@ -6,6 +6,7 @@ import dataclasses as dc
 import numpy as np
 import pytest
 from pydrake.common import RandomGenerator
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import VectorLogSink
@@ -15,10 +16,11 @@ from alight.diagrams.onboard.pilot import pilot_model
 from alight.diagrams.onboard.mocap import add_mocap
 from alight.diagrams.onboard.perception import add_target_perception, load_target_estimator_params
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.systems.boundary import GROUND_TRUTH, TARGET_ESTIMATE
+from alight.systems.boundary import GROUND_TRUTH, TARGET_ESTIMATE, CameraFrame
 from alight.systems.control.scripted_pilot import ScriptedPilot
 from alight.systems.perception.pattern import Pattern, load_pattern_params
-from alight.systems.perception.target_estimator import PERCEPTION_STATUS
+from alight.systems.perception.target_estimator import (PERCEPTION_STATUS, EstimatorState,
+                                                        PoseHistory, TargetEstimator)
 from alight.systems.perception.target_ekf import TargetEkf
 from alight.systems.rotations import quaternion_from_rotation_vector, quaternion_product
 from alight.systems.sensors.down_camera import DownCameraParams
@@ -221,3 +223,61 @@ def test_chi_square_gate_rejects_an_outlier_and_accepts_a_consistent_keypoint(ek
     accepted, d2 = ekf.update(prediction, prediction.uv + [4.0, -3.0])
     assert accepted and d2 < 9.0
     assert not np.allclose(ekf.p, p_before)
+
+
+# --- the estimator after touchdown: a lone keypoint under the camera ----------------------------
+def _lone_keypoint_pass(min_keypoint_depth: float, seed: int = 0):
+    """The estimator fed 3 s of 20 Hz frames from a vehicle landed on the moving target (2.4 m/s),
+    the camera 14 cm above the pattern and 5 cm off its centre: only the centre keypoint (id 8)
+    is in view, with 0.3 px noise, the camera pose from mocap (1 mm, 0.3 deg noise). The filter
+    starts at the truth with a converged covariance. Returns (error, std) of the position per
+    frame while the estimate is valid, and the frames' accepted keypoints."""
+    params = dc.replace(load_target_estimator_params(), min_keypoint_depth=min_keypoint_depth)
+    pattern = Pattern(load_pattern_params())
+    estimator = TargetEstimator(pattern, params)
+    lens = DownCameraParams(source="geometric").lens()
+    rng = np.random.default_rng(seed)
+    v = np.array([0.0, 2.4, 0.0])
+    p_TB = np.array([-0.049, 0.012, 0.219])   # the vehicle on the platform (HIL run, 19 s)
+    state = EstimatorState(TargetEkf(params.ekf), PoseHistory(params.pose_history), valid=True)
+    ekf = state.ekf
+    ekf.initialize(0.0, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0], 0.14)
+    ekf.v = v.copy()
+    ekf.P = np.diag([0.003 ** 2] * 2 + [0.007 ** 2] + [0.01 ** 2] * 3 + [0.05 ** 2] * 3)
+    state.last_accepted = 0.0
+    errors, stds, accepted = [], [], []
+    for k in range(1, 61):
+        t = 0.05 * k
+        p_WT = np.array([0.0, 0.0, 1.0]) + v * t
+        X_WB_true = RigidTransform(p_WT + p_TB)
+        for dt in (-0.02, -0.01, 0.0):  # mocap samples up to the frame's stamp
+            noise = RotationMatrix(RollPitchYaw(rng.normal(0.0, np.radians(0.3), 3)))
+            state.poses.add(t + dt, X_WB_true.translation() + v * dt + rng.normal(0, 0.001, 3),
+                            noise.ToQuaternion().wxyz(), v)
+        p_CK = (X_WB_true @ RigidTransform(lens.X_BC)).inverse().multiply(p_WT)
+        uv = lens.project(p_CK) + rng.normal(0.0, 0.3, 2)
+        estimator.process(state, CameraFrame(stamp=t, calibration=lens.calibration(),
+                                             keypoints=uv, keypoint_ids=np.array([8])))
+        if state.valid:
+            errors.append(ekf.p - p_WT)
+            stds.append(np.sqrt(np.diag(ekf.P)[0:3]))
+        accepted.append(PERCEPTION_STATUS.get(state.status, "accepted"))
+    return np.array(errors), np.array(stds), np.array(accepted)
+
+
+def test_a_keypoint_under_the_landed_camera_is_not_fused():
+    """After touchdown (`alight hil --mission land`, the landing test of test_mavlink_ev) the
+    camera 14 cm above the pattern sees its centre keypoint alone. Fused every frame, that bearing
+    (1/depth: its linearization fails this close) dragged the estimate 0.8-1.1 m along the ray in
+    3 s with a 3-sigma of 0.6 m; closer than `min_keypoint_depth` it is not fused, and the filter
+    predicts at the target's velocity with a growing covariance until `lost_timeout` (2 s) ends
+    its validity."""
+    error, std, accepted = _lone_keypoint_pass(min_keypoint_depth=0.0)   # fused, as it was
+    assert np.all(accepted == 1)
+    assert np.mean(np.all(np.abs(error) < 3 * std, axis=1)) < 0.7
+    assert np.abs(error[-1, 2]) > 0.3
+    params = load_target_estimator_params()
+    assert params.min_keypoint_depth > 0.14
+    error, std, accepted = _lone_keypoint_pass(params.min_keypoint_depth)
+    assert np.all(accepted == 0) and len(error) == 40   # valid for 2 s
+    assert np.all(np.abs(error) < 3 * std) and np.abs(error).max() < 0.01
