@@ -19,6 +19,10 @@ estimated from the one-step velocity prediction error and added to the model, v_
 hold the reference velocity against d. Only its horizontal part (wind) is estimated: the vertical
 balance is the identified thrust curve's, and on the ground (legs loaded, the vehicle cannot
 follow its commands) a vertical estimate would wind up. Gain 0 is the paper's controller.
+
+The estimate's position and the reference's are moved along their velocities from their stamps to
+the tick (at most `max_prediction`): the MPC starts from where the vehicle is now, not where the
+odometry saw it (not in the paper; 0 turns it off).
 """
 import dataclasses as dc
 import enum
@@ -70,6 +74,11 @@ class LinearMpcParams:
     # at 14 m/s against max_velocity 6 m/s, 12 m off the line: bench/faults.py); within it the
     # MPC is unchanged.
     max_position_error: float = bounded(10.0, 0.5, 1e4, "m")
+    # Latency (not in the paper): the estimate's position and the reference's are moved along
+    # their velocities from their stamps to the tick, by at most this much (0: as given). The
+    # mocap source's 30 ms put the vehicle 8 cm ahead of a reference moving at 3 m/s
+    # (tests/test_wind_offsets.py), 15 cm at 5 m/s.
+    max_prediction: float = bounded(0.1, 0.0, 0.5, "s")
     max_disturbance: float = bounded(3.0, 0.0, 9.81, "m/s^2")
     # persistent: one warm-started osqp workspace built from the MathematicalProgram;
     # drake: Drake's OsqpSolver, set up cold every tick; daqp: one warm-started DAQP (dual
@@ -308,11 +317,12 @@ class LinearMpc(Controller):
         q_WB = FC_ATTITUDE.get(attitude, "q_WB")
         offset = STATE_ESTIMATE.get(estimate, "heading") - heading_of(q_WB)
         q_EB = quaternion_product(heading_quaternion(offset), q_WB)
-        p_EB = STATE_ESTIMATE.get(estimate, "p_EB")
-        x0, yaw = model_state(p_EB, STATE_ESTIMATE.get(estimate, "v_EB"), q_EB,
-                              FC_ATTITUDE.get(attitude, "w_B"),
-                              carrot(p_EB, REFERENCE.get(reference, "p"),
-                                     self._p.max_position_error))
+        v_EB = STATE_ESTIMATE.get(estimate, "v_EB")
+        p_EB = STATE_ESTIMATE.get(estimate, "p_EB") + v_EB * self._age(estimate, now)
+        p_ref = REFERENCE.get(reference, "p") + REFERENCE.get(reference, "v") \
+            * self._age(reference, now)
+        x0, yaw = model_state(p_EB, v_EB, q_EB, FC_ATTITUDE.get(attitude, "w_B"),
+                              carrot(p_EB, p_ref, self._p.max_position_error))
         previous = context.get_discrete_state(self._solution).get_value()[:NUM_INPUTS]
         d_W = self._estimate_disturbance(context, STATE_ESTIMATE.get(estimate, "v_EB"))
         d_N = rotate_to_navigation(d_W, yaw)
@@ -332,6 +342,11 @@ class LinearMpc(Controller):
         discrete_state.set_value(self._failures, [0.0])
         discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
             valid=1.0, reason=MpcReason.OK, solver_status=solver_status))
+
+    def _age(self, vector: np.ndarray, now: float) -> float:
+        """How long before `now` the STATE_ESTIMATE or REFERENCE `vector` was stamped, clipped to
+        [0, max_prediction] (both layouts start with `stamp`)."""
+        return min(max(now - float(vector[0]), 0.0), self._p.max_prediction)
 
     def _estimate_disturbance(self, context, v_W: np.ndarray) -> np.ndarray:
         """d_W moved by `disturbance_gain` of the velocity the model failed to predict over the
