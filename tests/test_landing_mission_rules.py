@@ -133,13 +133,15 @@ def test_tracking_error_at_the_phase_2_boundary_aborts_every_attempt():
 
 
 @pytest.mark.mission
-def test_a_car_never_found_ends_with_a_gentle_landing_at_the_take_off_point(tmp_path):
+@pytest.mark.parametrize("stack", ["landing", "landing_managed"])
+def test_a_car_never_found_ends_with_a_gentle_landing_at_the_take_off_point(tmp_path, stack):
     """The field scenario with the car far away (it reaches the waypoint at 500 s) and an 8 s
     search: the vehicle returns over its take-off point, lands on the ground there at the take-off
-    velocity and disarms (before: it hovered at the waypoint until the run ran out)."""
+    velocity and disarms (before: it hovered at the waypoint until the run ran out). On the managed
+    stack the MPC tracker flies it home and the landoff tracker lands it."""
     scenario = load_scenario("field", overrides=[
         "random_seed: 0", "target_motion.approach_time: 500.0", "mission.search_timeout: 8.0",
-        "simulator.max_duration: 45.0"])
+        "simulator.max_duration: 50.0", f"onboard.stack: {stack}"])
     run = run_scenario(scenario, run_dir=tmp_path / "home")
     events = mission_transitions(run)
     assert [(m, r) for _, m, r in events][1:] == [
@@ -152,8 +154,8 @@ def test_a_car_never_found_ends_with_a_gentle_landing_at_the_take_off_point(tmp_
     assert abs(p_B[-1, 2] - p_B[0, 2]) < 0.01                       # on its legs
     assert truth["legs_ground_force"].iloc[-1] > 0.0
     assert truth["other_contact_time"].iloc[-1] == 0.0
-    # the descent at the take-off velocity (0.5 m/s): touchdown under 0.6 m/s, legs far from
-    # their structural limit (measured: 0.47 m/s, 31 N of 180 N)
+    # the descent at the take-off velocity (0.5 m/s; landoff: its landing speed): touchdown under
+    # 0.6 m/s, legs far from their structural limit (measured: 0.47 m/s, 31 N of 180 N)
     score = score_landing(run, scenario.scoring.impact.vertical_speed,
                           scenario.scoring.impact.horizontal_speed)
     assert not score.success and "search timeout" in score.reason
