@@ -1,12 +1,17 @@
 """VIO parts on their own (issue 8): virtual stereo L(2), and the system fed by hand: initialization
 from rest, a frame without features, a rendered frame with no texture."""
+import dataclasses as dc
+
 import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from alight.systems.boundary import STATE_ESTIMATE, CameraFrame, ImuSamples
-from alight.systems.sensors.rgbd_camera import RgbdCameraParams, depth_noise_std
+from alight.systems.sensors.rgbd_camera import (GeometricRgbdCamera, RgbdCameraParams,
+                                                depth_noise_std, occluded, ray_depth)
+from alight.systems.sensors.rgbd_camera_map import LandmarkMap
 from alight.systems.vio.estimator import VioParams, VioStatus
-from alight.systems.vio.frontend import virtual_stereo
+from alight.systems.vio.frontend import FrontendParams, Keypoints, KltTracker, virtual_stereo
 from alight.systems.vio.odometry import VIO_ODOMETRY, VisualInertialOdometry
 
 
@@ -180,3 +185,77 @@ def test_keyframes_add_at_most_max_landmarks_known_first_and_the_window_forgets_
         assert all(window.knows(track) for track in in_smoother)
     assert 0 < window.landmark_count() < 8 * 30  # old landmarks were marginalized
     np.testing.assert_allclose(window.state.nav.position(), 0.0, atol=0.05)
+
+
+# --- the geometric camera as a model of the front end's output (issue 20) ---------------------
+
+def _camera_pose(p, yaw=0.0):
+    return RigidTransform(RollPitchYaw(0, 0, yaw), p) @ RgbdCameraParams().X_BC()
+
+
+def test_a_landmark_behind_a_box_or_on_a_back_face_is_not_observed():
+    box = [4.0, -0.5, 5.0, 0.5, 2.0, 0.0]  # x0, y0, x1, y1, height
+    # behind the box (ground), on its front face (-x), on its back face (+x)
+    p_WL = np.array([[8.0, 0.0, 0.0], [4.0, 0.0, 1.0], [5.0, 0.2, 1.0]])
+    n_WL = np.array([[0, 0, 1.0], [-1.0, 0, 0], [1.0, 0, 0]])
+    own = np.array([-1, 0, 0])
+    camera = GeometricRgbdCamera(RgbdCameraParams(), 0, LandmarkMap(p_WL, np.array([box]),
+                                                                     n_WL, own))
+    behind = camera.visible(_camera_pose([0.0, 0.0, 1.5]))[0]
+    assert behind == [1]  # the front face only: its own box does not hide it
+    assert 0 in camera.visible(_camera_pose([0.0, 3.0, 1.5]))[0]  # seen from around the box
+    # the back-face point is hidden by the back-face rule alone: turned toward the camera, seen
+    flipped = GeometricRgbdCamera(RgbdCameraParams(), 0, LandmarkMap(
+        p_WL, np.array([box]), n_WL * [[1], [1], [-1]], own))
+    assert flipped.visible(_camera_pose([0.0, 0.0, 1.5]))[0] == [1, 2]
+    # a ray through a pixel: the depth of the first surface (the box's front face at x = 4)
+    assert occluded(np.array([0.0, 0, 1.5]), p_WL[:1], np.array([box])[:, :5], np.array([-1]))[0]
+    t = ray_depth(np.array([0.0, 0, 1.0]), np.array([[1.0, 0, 0], [1.0, 0, -0.1]]),
+                  np.array([box])[:, :5])
+    np.testing.assert_allclose(t, [4.0, 4.0])
+
+
+def test_outlier_matches_occur_at_the_configured_rate_and_the_front_end_rejects_them():
+    params = dc.replace(RgbdCameraParams(), outlier_probability=0.05)
+    camera = GeometricRgbdCamera(params, 0)
+    tracker = KltTracker(FrontendParams())
+    K = params.lens().K
+    tracks, next_id, jumps, tracked, caught, false_alarms = {}, 0, 0, 0, 0, 0
+    for k in range(60):
+        X_WC = _camera_pose([0.05 * k, 0.01 * k, 1.5], yaw=0.004 * k)
+        rng = np.random.default_rng(k)
+        previous = dict(tracks)
+        frame, tracks, next_id, jump = camera.observe(X_WC, k / 30, rng, tracks, next_id)
+        if k == 5:  # reproducible: the same pose, tracks and seed give the same frame
+            again = camera.observe(X_WC, k / 30, np.random.default_rng(k), previous, next_id)[0]
+            np.testing.assert_array_equal(again.keypoints, frame.keypoints)
+        is_tracked = np.isin(frame.keypoint_ids, list(previous.values()))
+        jumps, tracked = jumps + jump.sum(), tracked + is_tracked.sum()
+        assert not (jump & ~is_tracked).any()  # only a tracked keypoint slides away
+        kept = tracker.check(Keypoints(frame.keypoint_ids, frame.keypoints, frame.depth), K).ids
+        dropped = ~np.isin(frame.keypoint_ids, kept)
+        caught += (dropped & jump).sum()
+        false_alarms += (dropped & ~jump).sum()
+    assert 0.035 < jumps / tracked < 0.065
+    assert caught >= 0.85 * jumps and false_alarms < 0.01 * tracked
+    assert tracker.rejected == caught + false_alarms
+
+
+def test_the_vio_at_rest_stays_put_with_outlier_matches():
+    rig = RestRig()
+    params = dc.replace(rig.camera, outlier_probability=0.05)
+    camera = GeometricRgbdCamera(params, 0)
+    X_WC = _camera_pose([0.0, 0.0, 0.22])
+    frames, state = {}, [{}, 0]
+
+    def frame(t):
+        stamp = np.floor(t * 30) / 30
+        if stamp not in frames:
+            frames[stamp], state[0], state[1], _ = camera.observe(
+                X_WC, stamp, np.random.default_rng(len(frames)), state[0], state[1])
+        return frames[stamp]
+    rig.advance(3.0, frame)
+    estimate, odometry = rig.outputs()
+    assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.TRACKING
+    np.testing.assert_allclose(STATE_ESTIMATE.get(estimate, "p_EB"), [0, 0, 0.22], atol=0.01)
+    assert rig.dut.estimator._tracker.rejected > 50  # ~0.05 x 150 x 90 frames injected

@@ -13,7 +13,18 @@ and in holes. Two sources (DESIGN.md "Simulation fidelity"), timed like the down
   pixel noise, per-keypoint depth with the same noise model and holes, a feature budget and track
   losses. Track ids behave like a KLT tracker's: a landmark that was not observed in the previous
   frame (out of view, dropped, lost) comes back under a new id, so the estimator never gets free
-  re-identification.
+  re-identification. A model of the front end's output, not of the scene's points (issue 20):
+  - occlusion: a landmark is not observed when the segment from the camera centre to it crosses a
+    box of the map (slab test, visible candidates x boxes; its own box is left out, since a point
+    on a face is hidden by its own box only when that face turns away), nor when the outward
+    normal of its face points away from the camera (back face; the ground's normal is +z);
+  - outlier matches: each tracked keypoint jumps with probability `outlier_probability` to a
+    wrong pixel (`outlier_error` px away, uniform, in a uniform direction) keeping its track id,
+    as a KLT tracker sliding onto another corner does, with the depth of the surface seen at that
+    wrong pixel (ray cast on the ground and the boxes, NaN for the sky). The track ends there
+    (the landmark comes back under a new id), as the front end's consistency check ends such a
+    track on rendered images; a tracker staying on the wrong corner is not modelled.
+  All draws come from the frame's `noise_seed` (same scenario and seed: same streams).
 
 The pinhole has no distortion (the RealSense colour stream is published rectified).
 """
@@ -29,7 +40,8 @@ from alight.systems.boundary import CameraFrame
 from alight.systems.params import bounded, choice
 from alight.systems.sensors.down_camera import TimedCamera
 from alight.systems.sensors.down_camera_lens import Lens
-from alight.systems.sensors.rgbd_camera_map import LandmarkMapParams, make_landmark_map
+from alight.systems.sensors.rgbd_camera_map import (LandmarkMap, LandmarkMapParams,
+                                                    make_landmark_map)
 
 
 @dc.dataclass
@@ -57,6 +69,8 @@ class RgbdCameraParams:
     track_loss: float = bounded(0.02, 0.0, 1.0)                  # per track and frame
     frame_dropout: float = bounded(0.0, 0.0, 1.0)
     border_margin: float = bounded(8.0, 0.0, 1000.0, "px")
+    outlier_probability: float = bounded(0.01, 0.0, 1.0)         # per tracked keypoint and frame
+    outlier_error: list[float] = bounded([5.0, 40.0], 0.0, 1000.0, "px")  # jump length range
     # rendered source
     renderer_backend: str = choice("", "EGL", "GLX")
     image_noise_std: float = bounded(2.0, 0.0, 100.0, "grey levels")
@@ -91,6 +105,46 @@ def _noisy_depth(rng, z: np.ndarray, params: RgbdCameraParams, holes: np.ndarray
 GRID = (8, 6)  # feature bucketing cells (columns, rows)
 
 
+def _slab(c: np.ndarray, d: np.ndarray, boxes: np.ndarray):
+    """Ray c + t d (c (3,), d (N, 3)) against boxes (M, >= 5: x0, y0, x1, y1, height; standing on
+    z = 0): entry and exit parameters (N, M); the ray meets a box where exit >= max(entry, 0)."""
+    lo = np.column_stack([boxes[:, :2], np.zeros(len(boxes))])
+    hi = np.column_stack([boxes[:, 2:4], boxes[:, 4]])
+    d = np.where(np.abs(d) < 1e-12, 1e-12, d)
+    entry, exit_ = None, None
+    for k in range(3):  # per axis on (N, M) arrays: faster than a reduction over a short axis
+        inv = 1.0 / d[:, k:k + 1]
+        t1, t2 = (lo[:, k] - c[k]) * inv, (hi[:, k] - c[k]) * inv
+        near, far = np.minimum(t1, t2), np.maximum(t1, t2)
+        entry = near if entry is None else np.maximum(entry, near)
+        exit_ = far if exit_ is None else np.minimum(exit_, far)
+    return entry, exit_
+
+
+def occluded(c: np.ndarray, p: np.ndarray, boxes: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """(N,) whether the segment from c (3,) to each point p (N, 3) crosses a box before reaching
+    the point; a point's own box (`own` (N,), -1: none) is left out."""
+    if not len(p) or not len(boxes):
+        return np.zeros(len(p), bool)
+    entry, exit_ = _slab(c, p - c, boxes)
+    hit = (exit_ >= np.maximum(entry, 0.0)) & (entry < 1.0 - 1e-9)
+    mine = own >= 0
+    hit[np.flatnonzero(mine), own[mine]] = False
+    return hit.any(axis=1)
+
+
+def ray_depth(c: np.ndarray, d: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """The parameter t (N,) of the first surface (ground z = 0 or a box) on each ray c + t d
+    (inf: none). With d = R_WC [x, y, 1] it is the depth (z in C) seen at that pixel."""
+    with np.errstate(divide="ignore"):
+        t = np.where(d[:, 2] < 0, -c[2] / d[:, 2], np.inf)
+    if len(boxes) and len(d):
+        entry, exit_ = _slab(c, d, boxes)
+        t_box = np.where(exit_ >= np.maximum(entry, 0.0), np.maximum(entry, 0.0), np.inf)
+        t = np.minimum(t, t_box.min(axis=1))
+    return t
+
+
 class GeometricRgbdCamera(TimedCamera):
     """Input  `body_poses`  the plant's body poses (the vehicle's is used)
     Input  `noise_seed`  (1) uniform in [0, 1), resampled every period: seeds this frame's noise
@@ -98,15 +152,17 @@ class GeometricRgbdCamera(TimedCamera):
                          ids, depth (N,) per keypoint [m, NaN: no depth], calibration
     """
 
-    def __init__(self, params: RgbdCameraParams, body_index):
+    def __init__(self, params: RgbdCameraParams, body_index, landmarks: LandmarkMap = None):
         super().__init__(params, output_name="rgbd")
         self._lens = params.lens()
         self._calibration = params.calibration()
         self._X_BC = params.X_BC()
         self._body = int(body_index)
-        self.landmarks = make_landmark_map(params.landmarks)
+        self.landmarks = landmarks if landmarks is not None else make_landmark_map(
+            params.landmarks)
         # Homogeneous landmark coordinates (4, N), for one product per frame.
         self._p_WL_h = np.vstack([self.landmarks.p_WL.T, np.ones(len(self.landmarks.p_WL))])
+        self._boxes = self.landmarks.boxes[:, :5]
         self._focal, self._center = self._lens.K[[0, 1], [0, 1]], self._lens.K[:2, 2]
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(
             [RigidTransform()]))
@@ -122,10 +178,16 @@ class GeometricRgbdCamera(TimedCamera):
         state.get_mutable_abstract_state(self._tracks).set_value((tracks, next_id))
 
     def _observe(self, context, rng, tracks: dict, next_id: int):
+        X_WC = self._poses.Eval(context)[self._body] @ self._X_BC
+        frame, tracks, next_id, _ = self.observe(X_WC, self._stamp(context), rng, tracks, next_id)
+        return frame, tracks, next_id
+
+    def observe(self, X_WC: RigidTransform, stamp: float, rng, tracks: dict, next_id: int):
+        """One frame from the camera pose X_WC: (frame or None, the new {landmark: track id},
+        the next free track id, which keypoints are outliers (N,) bool)."""
         p = self._params
         if rng.random() < p.frame_dropout:
-            return None, {}, next_id
-        X_WC = self._poses.Eval(context)[self._body] @ self._X_BC
+            return None, {}, next_id, np.zeros(0, bool)
         visible, uv, z = self.visible(X_WC)
         tracked = [i for i in visible if i in tracks]
         # One draw per tracked landmark, in order (as many draws as one call each).
@@ -136,14 +198,31 @@ class GeometricRgbdCamera(TimedCamera):
         for i in selected[len(kept):]:
             new_tracks[int(i)], next_id = next_id, next_id + 1
         n = len(selected)
+        ids = np.array([new_tracks[int(i)] for i in selected], np.int64)
         keypoints = self._lens.project(self._points_C(X_WC, selected)) \
             + p.keypoint_noise_std * rng.standard_normal((n, 2)) if n else np.zeros((0, 2))
-        depth = _noisy_depth(rng, z[selected], p, rng.random(n) < p.hole_probability)
-        frame = CameraFrame(stamp=self._stamp(context), calibration=self._calibration,
-                            keypoints=keypoints,
-                            keypoint_ids=np.array([new_tracks[int(i)] for i in selected], np.int64),
-                            depth=depth)
-        return frame, new_tracks, next_id
+        # Outlier matches: a tracked keypoint (not a fresh detection) slides to a wrong pixel.
+        jump = (rng.random(n) < p.outlier_probability) & (np.arange(n) < len(kept))
+        length = rng.uniform(*p.outlier_error, n)
+        angle = rng.uniform(0.0, 2 * np.pi, n)
+        z_true = z[selected]
+        if jump.any():
+            moved = keypoints[jump] + length[jump, None] * np.column_stack(
+                [np.cos(angle[jump]), np.sin(angle[jump])])
+            moved = np.clip(moved, 0.0, [self._lens.width - 1.0, self._lens.height - 1.0])
+            keypoints[jump] = moved
+            R_WC = X_WC.rotation().matrix()
+            rays = np.column_stack([(moved - self._center) / self._focal,
+                                    np.ones(len(moved))]) @ R_WC.T
+            z_true = z_true.copy()
+            seen = ray_depth(X_WC.translation(), rays, self._boxes)
+            z_true[jump] = np.where(np.isfinite(seen), seen, np.nan)  # NaN: the sky
+            for i in selected[jump]:  # the track ends on the wrong corner
+                del new_tracks[int(i)]
+        depth = _noisy_depth(rng, z_true, p, rng.random(n) < p.hole_probability)
+        frame = CameraFrame(stamp=stamp, calibration=self._calibration, keypoints=keypoints,
+                            keypoint_ids=ids, depth=depth)
+        return frame, new_tracks, next_id, jump
 
     def _spread(self, fresh: list[int], kept: list[int], uv: np.ndarray, rng) -> list[int]:
         """New features ordered as a detector with a bucketing grid picks them: evenly over the
@@ -172,19 +251,48 @@ class GeometricRgbdCamera(TimedCamera):
         p_WL_h = self._p_WL_h if indices is None else self._p_WL_h[:, indices]
         return (X_WC.inverse().GetAsMatrix34() @ p_WL_h).T
 
+    def _boxes_in_view(self, X_WC: RigidTransform) -> np.ndarray:
+        """Rows of the boxes not wholly outside one plane of the view frustum (behind the camera,
+        or beyond one image edge), in increasing order."""
+        b = self._boxes
+        if not len(b):
+            return np.zeros(0, int)
+        corners = np.stack(np.meshgrid([0, 2], [1, 3], [0, 1], indexing="ij"), -1).reshape(-1, 3)
+        p_W = np.stack([b[:, corners[:, 0]], b[:, corners[:, 1]],
+                        b[:, 4:5] * corners[:, 2]], axis=-1)            # (M, 8, 3)
+        X_CW = X_WC.inverse()
+        p_C = p_W @ X_CW.rotation().matrix().T + X_CW.translation()
+        x, y, z = p_C[..., 0], p_C[..., 1], p_C[..., 2]
+        (fx, fy), (cx, cy) = self._focal, self._center
+        w, h = self._lens.width, self._lens.height
+        outside = ((z <= 0).all(1) | (fx * x + cx * z < 0).all(1)
+                   | (fx * x - (w - cx) * z > 0).all(1)
+                   | (fy * y + cy * z < 0).all(1) | (fy * y - (h - cy) * z > 0).all(1))
+        return np.flatnonzero(~outside)
+
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
         """Indices of the landmarks a detector would find (in front, within range, inside the
-        image minus the border), the noise-free pixels (meaningless behind the camera) and ranges
-        (z in C) of all landmarks."""
+        image minus the border, on a face turned toward the camera, not hidden by a box), the
+        noise-free pixels (meaningless behind the camera) and ranges (z in C) of all landmarks."""
         p = self._params
         p_CL = self._points_C(X_WC)
         z = p_CL[:, 2]
         ahead = (z > 0.1) & (z < p.max_range)
         with np.errstate(divide="ignore", invalid="ignore"):
             uv = p_CL[:, :2] / z[:, None] * self._focal + self._center
-        visible = ahead & self._lens.in_image(uv, p.border_margin)
-        return np.flatnonzero(visible).tolist(), uv, z
-
+        candidates = np.flatnonzero(ahead & self._lens.in_image(uv, p.border_margin))
+        m = self.landmarks
+        c = X_WC.translation()
+        p_WL = m.p_WL[candidates]
+        front = np.einsum("ij,ij->i", m.n_WL[candidates], c - p_WL) > 0
+        candidates, p_WL = candidates[front], p_WL[front]
+        # Only boxes that reach into the view frustum can hide a point in it.
+        in_view = self._boxes_in_view(X_WC)
+        own = np.full(len(candidates), -1)
+        mine = np.isin(m.box[candidates], in_view)
+        own[mine] = np.searchsorted(in_view, m.box[candidates][mine])
+        hidden = occluded(c, p_WL, self._boxes[in_view], own)
+        return candidates[~hidden].tolist(), uv, z
 
 class RenderedRgbdCamera(TimedCamera):
     """Input  `color_image`  ImageRgba8U from a Drake RgbdSensor with this camera's pinhole

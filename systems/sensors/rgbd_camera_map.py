@@ -2,6 +2,10 @@
 "Simulation fidelity"): the salient points a feature detector would find in the scene, as 3D points
 p_WL in the world. Textured ground (random points on z = 0) plus box-shaped objects standing on it
 (points on their four sides and top), all drawn from one seed so that a scenario is reproducible.
+
+Each landmark carries the outward normal of the surface it lies on (the ground's is +z) and the
+index of its box (-1: the ground), so that the camera can tell a back face and an occluded point
+(`rgbd_camera.GeometricRgbdCamera`, issue 20).
 """
 import dataclasses as dc
 
@@ -22,9 +26,13 @@ class LandmarkMapParams:
 
 @dc.dataclass(frozen=True)
 class LandmarkMap:
-    """p_WL (N, 3) landmark positions; boxes (M, 6) as x0, y0, x1, y1, height, unused."""
+    """p_WL (N, 3) landmark positions; boxes (M, 6) as x0, y0, x1, y1, height, unused; n_WL (N, 3)
+    the outward unit normal of each landmark's surface; box (N,) its box's row in `boxes` (-1: on
+    the ground)."""
     p_WL: np.ndarray
     boxes: np.ndarray
+    n_WL: np.ndarray = None
+    box: np.ndarray = None
 
 
 def make_landmark_map(params: LandmarkMapParams) -> LandmarkMap:
@@ -36,6 +44,7 @@ def make_landmark_map(params: LandmarkMapParams) -> LandmarkMap:
     ground = np.column_stack([rng.uniform(x0, x1, n_ground), rng.uniform(y0, y1, n_ground),
                               np.zeros(n_ground)])
     points, boxes = [ground], []
+    normals, owners = [np.tile([0.0, 0.0, 1.0], (n_ground, 1))], [np.full(n_ground, -1)]
     lo, hi = params.box_size
     for _ in range(params.boxes):
         size = rng.uniform(lo, hi, 3)
@@ -43,14 +52,19 @@ def make_landmark_map(params: LandmarkMapParams) -> LandmarkMap:
         if np.hypot(*centre) < 3.0 + size[:2].max():  # keep the take-off spot clear
             continue
         boxes.append([*(centre - size[:2] / 2), *(centre + size[:2] / 2), size[2], 0.0])
-        points.append(_box_surface_points(rng, centre, size, params.box_density))
-    return LandmarkMap(np.vstack(points), np.array(boxes).reshape(-1, 6))
+        p, n = _box_surface_points(rng, centre, size, params.box_density)
+        points.append(p)
+        normals.append(n)
+        owners.append(np.full(len(p), len(boxes) - 1))
+    return LandmarkMap(np.vstack(points), np.array(boxes).reshape(-1, 6), np.vstack(normals),
+                       np.concatenate(owners))
 
 
-def _box_surface_points(rng, centre, size, density) -> np.ndarray:
-    """Uniform points on the four sides and the top of a box standing on the ground."""
+def _box_surface_points(rng, centre, size, density) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform points on the four sides and the top of a box standing on the ground, and their
+    faces' outward normals."""
     sx, sy, sz = size
-    faces = []
+    faces, normals = [], []
     for axis, extent_a, extent_b in ((0, sy, sz), (1, sx, sz)):
         for side in (-0.5, 0.5):
             n = rng.poisson(density * extent_a * extent_b)
@@ -58,7 +72,9 @@ def _box_surface_points(rng, centre, size, density) -> np.ndarray:
             offset = np.full(n, side * size[axis])
             xy = np.column_stack([offset, a]) if axis == 0 else np.column_stack([a, offset])
             faces.append(np.column_stack([centre + xy, z]))
+            normals.append(np.tile(np.eye(3)[axis] * np.sign(side), (n, 1)))
     n = rng.poisson(density * sx * sy)
     top = rng.uniform(-0.5, 0.5, (n, 2)) * [sx, sy] + centre
     faces.append(np.column_stack([top, np.full(n, sz)]))
-    return np.vstack(faces)
+    normals.append(np.tile([0.0, 0.0, 1.0], (n, 1)))
+    return np.vstack(faces), np.vstack(normals)

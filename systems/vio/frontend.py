@@ -7,7 +7,13 @@ virtual stereo measurement of L(2), and keyframe selection.
   range cannot start a landmark: L(2) needs its depth; the horizon's corners, which are the
   strongest in a forward view, would otherwise take the whole budget); depth looked up per keypoint
   (median of the valid depths around it).
-- Geometric frames already carry keypoints, track ids and per-keypoint depth.
+- Geometric frames already carry keypoints, track ids and per-keypoint depth; their tracks are
+  checked against the previous frame (issue 20: the geometric camera injects outlier matches): a
+  3D-2D RANSAC (`cv2.solvePnPRansac`) of the previous frame's keypoints with depth, back-projected,
+  against this frame's pixels gives the camera's motion between the frames; a track whose
+  reprojection error (with depth in the previous frame) or distance to its epipolar line (without)
+  exceeds `outlier_threshold` is dropped from this frame (counted in `KltTracker.rejected`).
+  Tracks new in this frame are not checked (a fresh detection is no match).
 
 L(2): z_v = u_v(T_CvC u^-1(z, D)): the keypoint back-projected with its depth, moved into the
 virtual camera (the RGB camera shifted by the infrared baseline along x_C) and projected again with
@@ -30,6 +36,7 @@ class FrontendParams:
     klt_window: int = bounded(21, 5, 101, "px")
     klt_levels: int = bounded(3, 0, 8)
     ransac_threshold: float = bounded(1.0, 0.1, 20.0, "px")
+    outlier_threshold: float = bounded(3.0, 0.1, 50.0, "px")  # geometric frames' 3D-2D check
     depth_window: int = bounded(2, 0, 10, "px")            # half size of the depth lookup patch
     keyframe_period: float = bounded(0.1, 0.0, 5.0, "s")   # at most this long between keyframes
     keyframe_overlap: float = bounded(0.7, 0.0, 1.0)       # fewer known tracks: a keyframe now
@@ -86,6 +93,48 @@ class KltTracker:
         self._uv = np.zeros((0, 2), np.float32)
         self._ids = np.zeros(0, np.int64)
         self._next_id = 0
+        self._last_geometric = Keypoints.empty()
+        self.rejected = 0  # geometric keypoints dropped by the 3D-2D check, in all
+
+    def check(self, keypoints: Keypoints, K: np.ndarray) -> Keypoints:
+        """Geometric keypoints without the tracks inconsistent with the previous frame's (3D-2D
+        RANSAC on the motion between the frames, then per track: reprojection error with depth
+        in the previous frame, epipolar distance without)."""
+        previous, self._last_geometric = self._last_geometric, keypoints
+        _, a, b = np.intersect1d(previous.ids, keypoints.ids, assume_unique=True,
+                                 return_indices=True)
+        has_depth = np.isfinite(previous.depth[a])
+        if has_depth.sum() < 8:
+            return keypoints
+        f, c = K[[0, 1], [0, 1]], K[:2, 2]
+        x_prev = np.column_stack([(previous.uv[a] - c) / f, np.ones(len(a))])
+        p_prev = x_prev[has_depth] * previous.depth[a][has_depth, None]
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(
+            p_prev, keypoints.uv[b][has_depth], K, None, iterationsCount=50,
+            reprojectionError=self._p.outlier_threshold, confidence=0.99,
+            flags=cv2.SOLVEPNP_EPNP)
+        if not ok:
+            return keypoints
+        R, t = cv2.Rodrigues(rvec)[0], tvec.ravel()
+        error = np.empty(len(a))
+        q = p_prev @ R.T + t
+        error[has_depth] = np.linalg.norm(q[:, :2] / q[:, 2:] * f + c
+                                          - keypoints.uv[b][has_depth], axis=1)
+        # without depth: the distance to the epipolar line E x_prev (E = [t]x R), in pixels
+        x_cur = np.column_stack([(keypoints.uv[b][~has_depth] - c) / f,
+                                 np.ones((~has_depth).sum())])
+        line = np.cross(t, x_prev[~has_depth] @ R.T)
+        error[~has_depth] = f.mean() * np.abs(np.einsum("ij,ij->i", x_cur, line)) / np.maximum(
+            np.linalg.norm(line[:, :2], axis=1), 1e-12)
+        bad = b[error > self._p.outlier_threshold]
+        if not len(bad):
+            return keypoints
+        self.rejected += len(bad)
+        keep = np.ones(len(keypoints), bool)
+        keep[bad] = False
+        kept = Keypoints(keypoints.ids[keep], keypoints.uv[keep], keypoints.depth[keep])
+        self._last_geometric = kept
+        return kept
 
     def track(self, frame: CameraFrame) -> Keypoints:
         p = self._p
@@ -139,8 +188,9 @@ def keypoints_of(frame: CameraFrame, tracker: KltTracker) -> Keypoints:
     if frame.keypoints is not None:
         n = len(frame.keypoints)
         depth = np.asarray(frame.depth, float) if frame.depth is not None else np.full(n, np.nan)
-        return Keypoints(np.asarray(frame.keypoint_ids, np.int64),
-                         np.asarray(frame.keypoints, float).reshape(n, 2), depth.reshape(n))
+        keypoints = Keypoints(np.asarray(frame.keypoint_ids, np.int64),
+                              np.asarray(frame.keypoints, float).reshape(n, 2), depth.reshape(n))
+        return tracker.check(keypoints, np.asarray(frame.calibration["K"], float))
     if frame.image is not None:
         return tracker.track(frame)
     return Keypoints.empty()
