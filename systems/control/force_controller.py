@@ -22,8 +22,9 @@ integrators start at zero, or, when the optional input `last_disturbance` is con
 manager forwards the previous controller's `disturbance_estimate`) and finite, from the previous
 controller's estimates; they are frozen while the ramp lasts, and while the optional input
 `tracker_status` (the active tracker's) reports ADMITTANCE_HOLD (M Sec. 4.2: the vehicle is held
-down; learning that pull as mass M(37) would wind the thrust up to its limit). When the estimator frame changes
-(frame_counter), the integrators are re-expressed in the new frame (M Sec. 3.5).
+down; learning that pull as mass M(37) would wind the thrust up to its limit). When the
+estimator frame changes (frame_counter), the integrators are re-expressed in the new frame
+(M Sec. 3.5).
 
 Reference latency: the reference chi is advanced from its `stamp` to the tick time (at most
 `max_prediction`) along its own derivatives (v, a, j; heading by its rate). A tracker that
