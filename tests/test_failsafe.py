@@ -121,3 +121,72 @@ def test_the_descent_starts_from_the_mass_the_commands_held_not_from_the_last_on
     thrust = FC_COMMAND.get(dut.GetOutputPort("fc_command").Eval(context), "thrust")
     # Within the 2 s filter's ripple (0.6 % after a +3 % quarter second), not 3 % over.
     assert thrust == pytest.approx(HOVER_THRUST, rel=0.01)
+
+
+@pytest.mark.parametrize("estimate_heading", [0.0, 1.2])
+def test_a_failsafe_taken_at_speed_brakes_against_the_last_velocity_then_levels(
+        estimate_heading):
+    """An estimate lost at 4 m/s (heading frames of estimate and command coincide: the command's
+    heading is the vehicle's): the failsafe tilts against the velocity seen at 2 m/s^2 for 2 s
+    (the thrust raised so the vertical force is the descent's), then levels; below
+    `brake_min_speed` it does not brake. Before, it coasted on: an estimate lost at 5.7 m/s
+    touched the ground moving sideways, 228 N on a leg (docs/benchmarks.md)."""
+    from alight.systems.rotations import heading_quaternion, rotation_matrix
+    v_W = 4.0 * np.array([np.cos(0.3), np.sin(0.3), 0.0])    # moving at 0.3 rad in E
+    dut = FailsafeController(VEHICLE, FailsafeParams(), 0.01)
+    context = dut.CreateDefaultContext()
+    simulator = Simulator(dut, context)
+    dut.GetInputPort("reference").FixValue(context, reference())
+    dut.GetInputPort("active").FixValue(context, [0.0])
+    # The command's heading (FC frame W) differs from the estimate's heading by the frame offset.
+    offset = 0.7
+    dut.GetInputPort("last_command").FixValue(context, FailsafeCommand.hover(
+        estimate_heading + offset))
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(
+        p_EB=[0.0, 0.0, 5.0], v_EB=v_W, q_EB=heading_quaternion(estimate_heading),
+        heading=estimate_heading))
+    simulator.AdvanceTo(1.0)
+    dut.GetInputPort("state_estimate").FixValue(context, falling(0.0, valid=0.0))
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    tilts, forces = [], []
+    for _ in range(300):
+        simulator.AdvanceTo(context.get_time() + 0.01)
+        command = dut.GetOutputPort("fc_command").Eval(context)
+        b3 = rotation_matrix(FC_COMMAND.get(command, "q_WD"))[:, 2]
+        tilts.append(b3)
+        forces.append(VEHICLE.curve.force(FC_COMMAND.get(command, "thrust")) * b3)
+    tilts, forces = np.array(tilts), np.array(forces)
+    vertical = forces[:, 2]
+    # the velocity in the command's frame W: turned by the heading offset
+    c, s = np.cos(offset), np.sin(offset)
+    v_cmd = np.array([c * v_W[0] - s * v_W[1], s * v_W[0] + c * v_W[1]])
+    braking, level = tilts[5:195], tilts[205:]
+    direction = braking[:, :2] / np.linalg.norm(braking[:, :2], axis=1, keepdims=True)
+    np.testing.assert_allclose(direction, np.tile(-v_cmd / 4.0, (len(braking), 1)), atol=1e-6)
+    horizontal = np.linalg.norm(forces[5:195, :2], axis=1) / VEHICLE.mass
+    np.testing.assert_allclose(horizontal, 2.0, rtol=1e-3)      # brake_acceleration
+    np.testing.assert_allclose(level[:, :2], 0.0, atol=1e-9)
+    # the vertical force is the level descent's throughout (continuous at the end of braking)
+    assert abs(vertical[199] - vertical[200]) < 0.01 * vertical[200]
+
+
+class FailsafeCommand:
+    @staticmethod
+    def hover(eta: float) -> np.ndarray:
+        return level_command(0.0, eta, HOVER_THRUST, 1.0)
+
+
+def test_a_failsafe_taken_slowly_does_not_brake():
+    dut = FailsafeController(VEHICLE, FailsafeParams(), 0.01)
+    context = dut.CreateDefaultContext()
+    simulator = Simulator(dut, context)
+    dut.GetInputPort("reference").FixValue(context, reference())
+    dut.GetInputPort("active").FixValue(context, [0.0])
+    dut.GetInputPort("last_command").FixValue(context, FailsafeCommand.hover(0.0))
+    dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(
+        p_EB=[0.0, 0.0, 5.0], v_EB=[0.8, 0.0, 0.0]))
+    simulator.AdvanceTo(1.0)
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    simulator.AdvanceTo(1.05)
+    q = FC_COMMAND.get(dut.GetOutputPort("fc_command").Eval(context), "q_WD")
+    np.testing.assert_allclose(q, [1.0, 0.0, 0.0, 0.0], atol=1e-12)

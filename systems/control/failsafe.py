@@ -13,6 +13,15 @@ of that mass, decreasing at `thrust_decrease_rate` (fraction of the hover force 
 to `descent_fraction` of it: a moderate, drag-limited descent that stops the vehicle from
 accelerating in any direction.
 
+Braking (not in the paper): a vehicle that loses its estimate at speed would otherwise coast on
+during the whole descent (an estimate lost at 5.7 m/s touched the ground moving sideways, 228 N
+on a leg). While inactive the failsafe low-passes the horizontal velocity of the usable estimates
+(`velocity_filter_time`) in the estimate's heading frame; on activation, when that velocity is
+recent (within `brake_window`) and faster than `brake_min_speed`, it first tilts against it at
+`brake_acceleration` for |v| / `brake_acceleration` (at most `max_brake_time`), thrust raised by
+1 / cos(tilt) so the descent is unchanged, then levels. The heading frames of the estimate and of
+the last command are taken to coincide (both the vehicle's heading).
+
 Touchdown, then disarm: when the state estimate is usable (valid, and its vertical speed's
 standard deviation within `max_speed_std`: a speed noisier than that cannot tell a touchdown),
 the vehicle is on the ground once it has been seen descending and its vertical speed (low-passed
@@ -27,11 +36,13 @@ It then commands zero thrust and arm = 0.
 import dataclasses as dc
 
 import numpy as np
+from pydrake.math import RotationMatrix
 
 from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, VectorLayout, estimate_is_valid
 from alight.systems.control.controller import (Controller, ControllerReason, command_is_usable,
                                                level_command, status_vector)
 from alight.systems.control.force_controller import VehicleModel
+from alight.systems.control.so3 import desired_orientation
 from alight.systems.control.touchdown import apparent_mass
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, rotation_matrix
@@ -51,12 +62,18 @@ class FailsafeParams:
     mass_filter_time: float = bounded(2.0, 0.0, 60.0, "s")     # m_e: M(34) low-passed (0: last)
     max_speed_std: float = bounded(0.5, 0.01, 100.0, "m/s")  # usable estimate's v_z std
     descent_height: float = bounded(0.5, 0.05, 100.0, "m")   # below the hand-over: descended
+    brake_acceleration: float = bounded(2.0, 0.0, 5.0, "m/s^2")  # 0: no braking
+    brake_min_speed: float = bounded(1.0, 0.0, 30.0, "m/s")      # slower: no braking
+    max_brake_time: float = bounded(4.0, 0.0, 30.0, "s")
+    brake_window: float = bounded(0.5, 0.0, 10.0, "s")           # the velocity seen this recently
+    velocity_filter_time: float = bounded(0.3, 0.0, 10.0, "s")   # low-pass on the seen velocity
 
 
 _STATE = VectorLayout("failsafe_state", [
     ("start", 1), ("hover_force", 1), ("heading", 1), ("mass", 1),
     ("descended", 1), ("quiet_time", 1), ("touched_down", 1), ("v_z", 1),
-    ("estimate_time", 1)])   # the last tick with a usable estimate (the activation before one)
+    ("estimate_time", 1),    # the last tick with a usable estimate (the activation before one)
+    ("brake", 2), ("brake_until", 1)])   # braking acceleration in the heading frame, until when
 
 
 class FailsafeController(Controller):
@@ -76,6 +93,8 @@ class FailsafeController(Controller):
         self._mass_seen = self.DeclareDiscreteState([np.nan])
         # [z, frame counter] of the last usable estimate before the hand-over (NaN: none).
         self._height_seen = self.DeclareDiscreteState([np.nan, np.nan])
+        # [v_x, v_y] of the usable estimates in their heading frame, low-passed, and when seen.
+        self._velocity_seen = self.DeclareDiscreteState([0.0, 0.0, np.nan])
         self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
 
     def flying_mass(self, command: np.ndarray) -> float:
@@ -109,6 +128,7 @@ class FailsafeController(Controller):
             discrete_state.set_value(self._height_seen, [
                 STATE_ESTIMATE.get(estimate, "p_EB")[2],
                 STATE_ESTIMATE.get(estimate, "frame_counter")])
+            self._see_velocity(context, discrete_state, estimate)
         mass = self.flying_mass(self._last.Eval(context))
         if np.isnan(mass):
             return
@@ -118,6 +138,29 @@ class FailsafeController(Controller):
         discrete_state.set_value(self._mass_seen, [
             mass if np.isnan(seen) else seen + alpha * (mass - seen)])
 
+    def _see_velocity(self, context, discrete_state, estimate) -> None:
+        eta = STATE_ESTIMATE.get(estimate, "heading")
+        v = STATE_ESTIMATE.get(estimate, "v_EB")[:2]
+        v_H = np.array([np.cos(eta) * v[0] + np.sin(eta) * v[1],
+                        -np.sin(eta) * v[0] + np.cos(eta) * v[1]])
+        seen = context.get_discrete_state(self._velocity_seen).get_value()
+        recent = np.isfinite(seen[2]) and context.get_time() - seen[2] <= 2 * self._period
+        alpha = min(1.0, self._period / self._p.velocity_filter_time) \
+            if self._p.velocity_filter_time > 0 and recent else 1.0
+        discrete_state.set_value(self._velocity_seen, [*(seen[:2] + alpha * (v_H - seen[:2])),
+                                                       context.get_time()])
+
+    def _braking(self, context) -> tuple[np.ndarray, float]:
+        """The braking acceleration in the heading frame and its duration (zero: none)."""
+        p = self._p
+        v_x, v_y, seen = context.get_discrete_state(self._velocity_seen).get_value()
+        speed = float(np.hypot(v_x, v_y))
+        if p.brake_acceleration <= 0 or not np.isfinite(seen) or speed < p.brake_min_speed \
+                or context.get_time() - seen > p.brake_window:
+            return np.zeros(2), 0.0
+        return -np.array([v_x, v_y]) / speed * p.brake_acceleration, \
+            min(speed / p.brake_acceleration, p.max_brake_time)
+
     def _activate(self, context, discrete_state, last, estimate) -> None:
         """m_e and the heading of the last command; on the ground when it was not flying."""
         mass = self.last_mass(context, last)
@@ -125,10 +168,12 @@ class FailsafeController(Controller):
             and FC_COMMAND.get(last, "thrust") > 0.0
         eta = heading(rotation_matrix(FC_COMMAND.get(last, "q_WD"))) \
             if command_is_usable(last) else 0.0
+        brake, duration = self._braking(context) if flying else (np.zeros(2), 0.0)
         discrete_state.set_value(self._state, _STATE.pack(
             start=context.get_time(), hover_force=mass * GRAVITY, heading=eta, mass=mass,
             descended=0.0, quiet_time=0.0, touched_down=0.0 if flying else 1.0, v_z=0.0,
-            estimate_time=context.get_time()))
+            estimate_time=context.get_time(), brake=brake,
+            brake_until=context.get_time() + duration))
 
     def _update_active(self, context, discrete_state, estimate) -> None:
         now = context.get_time()
@@ -144,11 +189,22 @@ class FailsafeController(Controller):
             fraction = max(self._p.descent_fraction, 1.0 - self._p.thrust_decrease_rate
                            * (now - x[S.slice("start")][0]))
             force, arm = fraction * x[S.slice("hover_force")][0], 1.0
-        thrust = float(self._curve.thrust(force)) if arm else 0.0
-        mass = x[S.slice("mass")][0]
-        discrete_state.set_value(self._command, level_command(now, x[S.slice("heading")][0],
-                                                              thrust, arm))
-        discrete_state.set_value(self._acceleration, [0.0, 0.0, force / mass - GRAVITY])
+        mass, eta = x[S.slice("mass")][0], x[S.slice("heading")][0]
+        command = level_command(now, eta, 0.0, arm)
+        acceleration = np.array([0.0, 0.0, force / mass - GRAVITY])
+        if arm and now < x[S.slice("brake_until")][0]:
+            c, s = np.cos(eta), np.sin(eta)
+            a_H = x[S.slice("brake")]
+            f_d = np.array([mass * (c * a_H[0] - s * a_H[1]), mass * (s * a_H[0] + c * a_H[1]),
+                            force])   # the descent's vertical force, tilted against the speed
+            command[FC_COMMAND.slice("q_WD")] = RotationMatrix(
+                desired_orientation(f_d, eta)).ToQuaternion().wxyz()
+            acceleration[:2] = f_d[:2] / mass
+            force = float(np.linalg.norm(f_d))
+        command[FC_COMMAND.slice("thrust")] = float(np.clip(self._curve.thrust(force), 0.0, 1.0)) \
+            if arm else 0.0
+        discrete_state.set_value(self._command, command)
+        discrete_state.set_value(self._acceleration, acceleration)
         discrete_state.set_value(self._state, x)
         discrete_state.set_value(self._status, status_vector(
             ControllerReason.TOUCHDOWN if touched_down else ControllerReason.OK))
