@@ -29,6 +29,8 @@ def test_mission_api_flies_the_sim_autopilot_over_mavlink(tmp_path):
         assert server.stop() == 0, "".join(server.output)
     sim = read_run(server.run_dir)
     p = sim.field("ground_truth", "p_WB").to_numpy()
+    print(f"closest to the goto point {np.linalg.norm(p - [2.0, 0.0, 1.5], axis=1).min():.3f} m, "
+          f"landed {np.round(p[-1] - [2.0, 0.0, p[0, 2]], 3)} m from below it")
     assert p[:, 2].max() - p[0, 2] > 1.2                              # took off ...
     assert np.linalg.norm(p - [2.0, 0.0, 1.5], axis=1).min() < 0.35   # ... went there ...
     assert abs(p[-1, 2] - p[0, 2]) < 0.05 and np.linalg.norm(p[-1, :2] - [2.0, 0.0]) < 0.5
