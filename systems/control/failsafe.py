@@ -42,6 +42,7 @@ from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, VectorLayout, es
 from alight.systems.control.controller import (Controller, ControllerReason, command_is_usable,
                                                level_command, status_vector)
 from alight.systems.control.force_controller import VehicleModel
+from alight.systems.control.linear_model import rotate_to_navigation
 from alight.systems.control.so3 import desired_orientation
 from alight.systems.control.touchdown import apparent_mass
 from alight.systems.params import bounded
@@ -139,10 +140,8 @@ class FailsafeController(Controller):
             mass if np.isnan(seen) else seen + alpha * (mass - seen)])
 
     def _see_velocity(self, context, discrete_state, estimate) -> None:
-        eta = STATE_ESTIMATE.get(estimate, "heading")
-        v = STATE_ESTIMATE.get(estimate, "v_EB")[:2]
-        v_H = np.array([np.cos(eta) * v[0] + np.sin(eta) * v[1],
-                        -np.sin(eta) * v[0] + np.cos(eta) * v[1]])
+        v_H = rotate_to_navigation(STATE_ESTIMATE.get(estimate, "v_EB"),
+                                   STATE_ESTIMATE.get(estimate, "heading"))[:2]
         seen = context.get_discrete_state(self._velocity_seen).get_value()
         recent = np.isfinite(seen[2]) and context.get_time() - seen[2] <= 2 * self._period
         alpha = min(1.0, self._period / self._p.velocity_filter_time) \
@@ -193,10 +192,9 @@ class FailsafeController(Controller):
         command = level_command(now, eta, 0.0, arm)
         acceleration = np.array([0.0, 0.0, force / mass - GRAVITY])
         if arm and now < x[S.slice("brake_until")][0]:
-            c, s = np.cos(eta), np.sin(eta)
-            a_H = x[S.slice("brake")]
-            f_d = np.array([mass * (c * a_H[0] - s * a_H[1]), mass * (s * a_H[0] + c * a_H[1]),
-                            force])   # the descent's vertical force, tilted against the speed
+            # the descent's vertical force, tilted against the speed (heading frame -> W)
+            f_d = mass * rotate_to_navigation(np.append(x[S.slice("brake")], 0.0), -eta)
+            f_d[2] = force
             command[FC_COMMAND.slice("q_WD")] = RotationMatrix(
                 desired_orientation(f_d, eta)).ToQuaternion().wxyz()
             acceleration[:2] = f_d[:2] / mass

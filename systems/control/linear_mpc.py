@@ -318,13 +318,14 @@ class LinearMpc(Controller):
         offset = STATE_ESTIMATE.get(estimate, "heading") - heading_of(q_WB)
         q_EB = quaternion_product(heading_quaternion(offset), q_WB)
         v_EB = STATE_ESTIMATE.get(estimate, "v_EB")
-        p_EB = STATE_ESTIMATE.get(estimate, "p_EB") + v_EB * self._age(estimate, now)
-        p_ref = REFERENCE.get(reference, "p") + REFERENCE.get(reference, "v") \
-            * self._age(reference, now)
+        p_EB = STATE_ESTIMATE.get(estimate, "p_EB") \
+            + v_EB * self._age(STATE_ESTIMATE.get(estimate, "stamp"), now)
+        p_ref = REFERENCE.get(reference, "p") \
+            + REFERENCE.get(reference, "v") * self._age(REFERENCE.get(reference, "stamp"), now)
         x0, yaw = model_state(p_EB, v_EB, q_EB, FC_ATTITUDE.get(attitude, "w_B"),
                               carrot(p_EB, p_ref, self._p.max_position_error))
         previous = context.get_discrete_state(self._solution).get_value()[:NUM_INPUTS]
-        d_W = self._estimate_disturbance(context, STATE_ESTIMATE.get(estimate, "v_EB"))
+        d_W = self._estimate_disturbance(context, v_EB)
         d_N = rotate_to_navigation(d_W, yaw)
         self._qp.update(x0, *self.references(reference, yaw, d_N),
                         previous if np.isfinite(previous).all() else None, d_N)
@@ -343,10 +344,9 @@ class LinearMpc(Controller):
         discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
             valid=1.0, reason=MpcReason.OK, solver_status=solver_status))
 
-    def _age(self, vector: np.ndarray, now: float) -> float:
-        """How long before `now` the STATE_ESTIMATE or REFERENCE `vector` was stamped, clipped to
-        [0, max_prediction] (both layouts start with `stamp`)."""
-        return min(max(now - float(vector[0]), 0.0), self._p.max_prediction)
+    def _age(self, stamp, now: float) -> float:
+        """How long before `now` `stamp` was, clipped to [0, max_prediction]."""
+        return min(max(now - float(stamp), 0.0), self._p.max_prediction)
 
     def _estimate_disturbance(self, context, v_W: np.ndarray) -> np.ndarray:
         """d_W moved by `disturbance_gain` of the velocity the model failed to predict over the
