@@ -59,7 +59,6 @@ class LandingRequests(LeafSystem):
                          Mode.LANDED: index["target_tracker"],
                          Mode.RETURNING: index["waypoint_tracker"],
                          Mode.LANDING_HOME: index["takeoff_tracker"]}
-        self._home_tracker = index["takeoff_tracker"]
         self._waypoint = TrackerGoal.point(params.waypoint, np.radians(params.heading))
         self._takeoff = LandoffGoal.takeoff(params.takeoff_height)
         self._landing = LandoffGoal.land()
@@ -86,7 +85,7 @@ class LandingRequests(LeafSystem):
         mode = self._mode(context)
         home = mode == Mode.LANDED and MISSION_STATUS.get(status, "reason") == Reason.ON_THE_GROUND
         output.SetFromVector([MISSION_STATUS.get(status, "transitions") + 1.0,
-                              self._home_tracker if home else self._tracker[mode]])
+                              self._tracker[Mode.LANDING_HOME] if home else self._tracker[mode]])
 
     def _calc_trajectory_goal(self, context, output):
         if self._mode(context) != Mode.RETURNING:
