@@ -9,8 +9,10 @@ from alight.systems.rotations import rotation_matrix
 
 
 def drag_force_B(v_BA_B: np.ndarray, linear, quadratic) -> np.ndarray:
-    """Drag on the body [N, in B] for its velocity relative to the air [m/s, in B]."""
-    return -(np.asarray(linear) * v_BA_B + np.asarray(quadratic) * np.abs(v_BA_B) * v_BA_B)
+    """Drag on the body [N, in B] for its velocity relative to the air [m/s, in B] (per axis on
+    Python floats: at 3 elements several times faster than NumPy, the same IEEE operations)."""
+    return np.array([-(c1 * v + c2 * abs(v) * v)
+                     for v, c1, c2 in zip(np.asarray(v_BA_B).tolist(), linear, quadratic)])
 
 
 class AerodynamicDrag(LeafSystem):
@@ -27,15 +29,18 @@ class AerodynamicDrag(LeafSystem):
 
     def __init__(self, body_index, linear, quadratic, period: float = 0.0):
         super().__init__()
-        self._body_index = body_index
-        self._linear = np.array(linear)
-        self._quadratic = np.array(quadratic)
+        self._linear = [float(c) for c in linear]
+        self._quadratic = [float(c) for c in quadratic]
         self._state = self.DeclareVectorInputPort("body_state", 13)
         self._wind = self.DeclareVectorInputPort("wind", 3)
         self._zero = np.zeros(3)
+        # One force object, re-filled at each sample or evaluation (the state or output copies it).
+        self._force = ExternallyAppliedSpatialForce()
+        self._force.body_index = body_index
+        self._force.p_BoBq_B = self._zero
+        self._force.F_Bq_W = SpatialForce(self._zero, self._zero)
         if period > 0:
-            self._held = self.DeclareAbstractState(AbstractValue.Make(
-                [self._spatial_force(self._zero)]))
+            self._held = self.DeclareAbstractState(AbstractValue.Make([self._force]))
             self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._sample)
             self.DeclareInitializationUnrestrictedUpdateEvent(self._sample)
             self.DeclareStateOutputPort("spatial_forces", self._held)
@@ -43,26 +48,17 @@ class AerodynamicDrag(LeafSystem):
         self.DeclareAbstractOutputPort(
             "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
             self._calc, prerequisites_of_calc={self.all_input_ports_ticket()})
-        # Runs at every plant step: one force object, re-filled (the output copies it).
-        self._force = self._spatial_force(self._zero)
 
-    def _spatial_force(self, f_W: np.ndarray) -> ExternallyAppliedSpatialForce:
-        force = ExternallyAppliedSpatialForce()
-        force.body_index = self._body_index
-        force.p_BoBq_B = np.zeros(3)
-        force.F_Bq_W = SpatialForce(self._zero, f_W)
-        return force
-
-    def _f_W(self, context) -> np.ndarray:
+    def _forces(self, context) -> list[ExternallyAppliedSpatialForce]:
         x = self._state.Eval(context)
         R_WB = rotation_matrix(x[0:4])
         v_BA_B = (x[10:13] - self._wind.Eval(context)) @ R_WB  # R_WB^T (v_WB - v_WA)
-        return R_WB @ drag_force_B(v_BA_B, self._linear, self._quadratic)
+        self._force.F_Bq_W = SpatialForce(
+            self._zero, R_WB @ drag_force_B(v_BA_B, self._linear, self._quadratic))
+        return [self._force]
 
     def _calc(self, context, output):
-        self._force.F_Bq_W = SpatialForce(self._zero, self._f_W(context))
-        output.set_value([self._force])
+        output.set_value(self._forces(context))
 
     def _sample(self, context, state):
-        state.get_mutable_abstract_state(self._held).set_value(
-            [self._spatial_force(self._f_W(context))])
+        state.get_mutable_abstract_state(self._held).set_value(self._forces(context))
