@@ -6,6 +6,7 @@ white noise (filtered gyro); vertical velocity: truth plus noise (baro/accelerom
 used only by the flight controller's failsafe descent and land detector.
 """
 import dataclasses as dc
+import math
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -35,8 +36,9 @@ class FcEstimate(LeafSystem):
     def __init__(self, params: FcEstimateParams):
         super().__init__()
         decay = np.exp(-params.period / params.attitude_error_time)
-        self._decay = decay
-        self._attitude_drive = np.radians(params.attitude_error_std) * np.sqrt(1.0 - decay**2)
+        self._decay = float(decay)  # Python floats: the per-call arithmetic is on floats
+        self._attitude_drive = float(np.radians(params.attitude_error_std)
+                                     * np.sqrt(1.0 - decay**2))
         self._rate_std = params.rate_noise_std
         self._vz_std = params.vertical_velocity_noise_std
         self._state = self.DeclareVectorInputPort("body_state", 13)
@@ -44,8 +46,10 @@ class FcEstimate(LeafSystem):
         # State: the rotation-vector attitude error (3) and the two outputs, each its own group
         # so that the outputs are state output ports (no Python call when read).
         self._error = self.DeclareDiscreteState(3)
+        self._stamp, self._q_WB, self._w_B = (FC_ATTITUDE.slice(f)
+                                              for f in ("stamp", "q_WB", "w_B"))
         initial = np.zeros(FC_ATTITUDE.size)
-        initial[FC_ATTITUDE.slice("q_WB").start] = 1.0
+        initial[self._q_WB.start] = 1.0
         self._fc_attitude = self.DeclareDiscreteState(initial)
         self._vz = self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
@@ -54,14 +58,19 @@ class FcEstimate(LeafSystem):
         self.DeclareStateOutputPort("vertical_velocity", self._vz)
 
     def _update(self, context, discrete_state):
+        # On Python floats where NumPy's per-call overhead dominates (3- and 4-vectors); the
+        # rotation keeps NumPy's matrix product (BLAS rounds differently from plain floats).
         x = self._state.Eval(context)
-        noise = self._noise.Eval(context)
-        error = self._decay * context.get_discrete_state(self._error).get_value() \
-            + self._attitude_drive * noise[:3]
-        q_WB = x[:4] / np.linalg.norm(x[:4])
-        q_est = quaternion_product(q_WB, quaternion_from_rotation_vector(error))
-        w_B = rotation_matrix(q_WB).T @ x[7:10] + self._rate_std * noise[3:6]
+        noise = self._noise.Eval(context).tolist()
+        error = [self._decay * e + self._attitude_drive * n for e, n in zip(
+            context.get_discrete_state(self._error).get_value().tolist(), noise[:3])]
+        q = x[:4]
+        norm = math.sqrt(q.dot(q))  # np.linalg.norm(q)
+        q_WB = [e / norm for e in q.tolist()]
+        w_B = (rotation_matrix(q_WB).T @ x[7:10]).tolist()
         discrete_state.set_value(self._error, error)
-        discrete_state.set_value(self._fc_attitude, FC_ATTITUDE.pack(
-            stamp=context.get_time(), q_WB=q_est, w_B=w_B))
-        discrete_state.set_value(self._vz, [x[12] + self._vz_std * noise[6]])
+        fc_attitude = discrete_state.get_mutable_value(self._fc_attitude)
+        fc_attitude[self._stamp] = context.get_time()
+        fc_attitude[self._q_WB] = quaternion_product(q_WB, quaternion_from_rotation_vector(error))
+        fc_attitude[self._w_B] = [w + self._rate_std * n for w, n in zip(w_B, noise[3:6])]
+        discrete_state.set_value(self._vz, [float(x[12]) + self._vz_std * noise[6]])
