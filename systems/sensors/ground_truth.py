@@ -1,4 +1,6 @@
 """The simulation-only `ground_truth` output (DESIGN.md): never read by an onboard system."""
+import math
+
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
@@ -25,20 +27,40 @@ class GroundTruth(LeafSystem):
         self._thrust = self.DeclareVectorInputPort("rotor_thrust", num_rotors)
         self._target = self.DeclareVectorInputPort("target_state", 13) if with_target else None
         self._contacts = self.DeclareVectorInputPort("contacts", CONTACTS.size)
-        self.DeclareVectorOutputPort("ground_truth", GROUND_TRUTH.size, self._calc)
+        # A pure function of the inputs (not of the time): recomputed only when they change.
+        self.DeclareVectorOutputPort("ground_truth", GROUND_TRUTH.size, self._calc,
+                                     prerequisites_of_calc={self.all_input_ports_ticket()})
+        self._at = {field: GROUND_TRUTH.slice(field) for field, _ in GROUND_TRUTH.fields}
+        # Two runs of fields written at once: the target's (p_WT to target_present, their
+        # defaults without a target) and the CONTACTS fields (in their order, at the end).
+        self._target_fields = slice(self._at["p_WT"].start, self._at["target_present"].stop)
+        self._no_target = GROUND_TRUTH.vector()[self._target_fields]
+        self._contact_fields = slice(self._at[CONTACTS.fields[0][0]].start, GROUND_TRUTH.size)
+        assert GROUND_TRUTH.fields[-len(CONTACTS.fields):] == CONTACTS.fields
 
     def _calc(self, context, output):
+        # Each field written in place by its slice (no per-call packing of keyword arguments).
+        at, y = self._at, output.get_mutable_value()
         x = self._state.Eval(context)
-        q_WB = x[:4] / np.linalg.norm(x[:4])
-        R_WB = rotation_matrix(q_WB)
-        target = {}
-        if self._target is not None:
+        q_WB = x[:4] / _norm(x[:4])
+        y[at["p_WB"]] = x[4:7]
+        y[at["q_WB"]] = q_WB
+        y[at["v_WB"]] = x[10:13]
+        y[at["w_WB_B"]] = rotation_matrix(q_WB).T @ x[7:10]
+        y[at["v_WA"]] = self._wind.Eval(context)
+        y[at["motor_command"]] = self._command.Eval(context)
+        y[at["rotor_thrust"]] = self._thrust.Eval(context)
+        if self._target is None:
+            y[self._target_fields] = self._no_target
+        else:
             x_T = self._target.Eval(context)
-            target = dict(p_WT=x_T[4:7], q_WT=x_T[:4] / np.linalg.norm(x_T[:4]),
-                          v_WT=x_T[10:13], target_present=1.0)
-        contacts = self._contacts.Eval(context)
-        output.SetFromVector(GROUND_TRUTH.pack(
-            p_WB=x[4:7], q_WB=q_WB, v_WB=x[10:13], w_WB_B=R_WB.T @ x[7:10],
-            v_WA=self._wind.Eval(context), motor_command=self._command.Eval(context),
-            rotor_thrust=self._thrust.Eval(context), **target,
-            **{field: CONTACTS.get(contacts, field) for field, _ in CONTACTS.fields}))
+            y[at["p_WT"]] = x_T[4:7]
+            y[at["q_WT"]] = x_T[:4] / _norm(x_T[:4])
+            y[at["v_WT"]] = x_T[10:13]
+            y[at["target_present"]] = 1.0
+        y[self._contact_fields] = self._contacts.Eval(context)
+
+
+def _norm(v: np.ndarray) -> float:
+    """np.linalg.norm of a 1-D array, the same value without its per-call overhead."""
+    return math.sqrt(v.dot(v))

@@ -105,7 +105,9 @@ class PlatformState(LeafSystem):
             "body_poses", _abstract_list(RigidTransform()))
         self._velocities = self.DeclareAbstractInputPort(
             "body_spatial_velocities", _abstract_list_velocity())
-        self.DeclareVectorOutputPort("target_state", 13, self._calc)
+        # A pure function of the inputs (not of the time): recomputed only when they change.
+        self.DeclareVectorOutputPort("target_state", 13, self._calc,
+                                     prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def _calc(self, context, output):
         X_WT = self._poses.Eval(context)[self._index]
