@@ -44,7 +44,7 @@ class Wind(LeafSystem):
         self.DeclareStateOutputPort("wind", self._wind)
 
     def _update(self, context, discrete_state):
-        gust = context.get_discrete_state(self._gust).get_value()
-        gust = self._decay * gust + self._drive * self._noise.Eval(context)
-        discrete_state.set_value(self._gust, gust)
-        discrete_state.set_value(self._wind, self._mean + gust)
+        # `discrete_state` holds the current state on entry (Drake copies it in): updated in place.
+        gust = discrete_state.get_mutable_value(self._gust)
+        gust[:] = self._decay * gust + self._drive * self._noise.Eval(context)
+        discrete_state.get_mutable_value(self._wind)[:] = self._mean + gust

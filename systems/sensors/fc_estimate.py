@@ -60,17 +60,18 @@ class FcEstimate(LeafSystem):
     def _update(self, context, discrete_state):
         # On Python floats where NumPy's per-call overhead dominates (3- and 4-vectors); the
         # rotation keeps NumPy's matrix product (BLAS rounds differently from plain floats).
+        # `discrete_state` holds the current state on entry (Drake copies it in); updated in place.
         x = self._state.Eval(context)
         noise = self._noise.Eval(context).tolist()
-        error = [self._decay * e + self._attitude_drive * n for e, n in zip(
-            context.get_discrete_state(self._error).get_value().tolist(), noise[:3])]
+        error = discrete_state.get_mutable_value(self._error)
+        error[:] = [self._decay * e + self._attitude_drive * n
+                    for e, n in zip(error.tolist(), noise[:3])]
         q = x[:4]
         norm = math.sqrt(q.dot(q))  # np.linalg.norm(q)
         q_WB = [e / norm for e in q.tolist()]
         w_B = (rotation_matrix(q_WB).T @ x[7:10]).tolist()
-        discrete_state.set_value(self._error, error)
         fc_attitude = discrete_state.get_mutable_value(self._fc_attitude)
         fc_attitude[self._stamp] = context.get_time()
         fc_attitude[self._q_WB] = quaternion_product(q_WB, quaternion_from_rotation_vector(error))
         fc_attitude[self._w_B] = [w + self._rate_std * n for w, n in zip(w_B, noise[3:6])]
-        discrete_state.set_value(self._vz, [float(x[12]) + self._vz_std * noise[6]])
+        discrete_state.get_mutable_value(self._vz)[0] = x[12] + self._vz_std * noise[6]

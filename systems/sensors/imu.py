@@ -54,7 +54,8 @@ class Imu(LeafSystem):
         self.DeclareStateOutputPort("bias", self._bias)
 
     def _update(self, context, state):
-        bias = context.get_discrete_state(self._bias).get_value()
+        # `state` holds the current state on entry (Drake copies it in): the bias updated in place.
+        bias = state.get_mutable_discrete_state(self._bias).get_mutable_value()
         noise = self._noise.Eval(context)
         truth = np.concatenate([self._specific_force.Eval(context),
                                 self._angular_velocity.Eval(context)])
@@ -63,4 +64,4 @@ class Imu(LeafSystem):
         seq = int(samples.seq[-1]) + 1 if len(samples) else 0
         state.get_mutable_abstract_state(self._samples).set_value(samples.appended(
             seq, context.get_time(), measured[:3], measured[3:], self._capacity))
-        state.get_mutable_discrete_state(self._bias).set_value(bias + self._walk * noise[6:])
+        bias += self._walk * noise[6:]
