@@ -19,7 +19,8 @@ class ArmGate(LeafSystem):
         self._command_disarms = command_disarms
         self._command = self.DeclareVectorInputPort("fc_command", FC_COMMAND.size)
         self._arm = self.DeclareVectorInputPort("arm", 2)
-        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc)
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc,
+                                     {self.all_input_ports_ticket()})
 
     def _calc(self, context, output):
         command = self._command.Eval(context).copy()

@@ -198,8 +198,12 @@ class CommandSwitch(LeafSystem):
     cached once per context change (`_decision`, read by the outputs and the update) and the
     `fc_command` output (`_calc_command`); subclasses implement the three methods."""
 
-    def _declare_switching(self, period: float) -> set:
-        """Returns the tickets of everything (inputs, state, time) the decision depends on."""
+    def _declare_switching(self, period: float, command_prerequisites: set | None = None
+                           ) -> set:
+        """Returns the tickets of everything (inputs, state, time) the decision depends on.
+        `command_prerequisites`: what `_calc_command` reads, when less than that (the outputs
+        read between the ticks by the vehicle's flight controller are then not recomputed at
+        every simulator step)."""
         self._last_command = self.DeclareDiscreteState(level_command(0.0, 0.0, 0.0, 0.0))
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         everything = {self.all_input_ports_ticket(), self.all_state_ticket(), self.time_ticket()}
@@ -208,7 +212,7 @@ class CommandSwitch(LeafSystem):
                                       calc=lambda context, value: value.set_value(
                                           self._compute_decision(context))), everything)
         self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc_command,
-                                     everything)
+                                     command_prerequisites or everything)
         return everything
 
 

@@ -88,7 +88,9 @@ class FailsafeSwitch(CommandSwitch):
         self._state = self.DeclareDiscreteState(_STATE.vector(
             mode=ManagerMode.NORMAL, p_ref=np.nan, v_ref=np.nan, t_ref=np.nan))
         # The `NAME.active` outputs and the update read the decision.
-        everything = self._declare_switching(params.period)
+        # The command forwarded reads the state and the two commands only (not the decision).
+        everything = self._declare_switching(params.period, {
+            self.all_state_ticket(), *(port.ticket() for port in self._commands)})
         for index, name in enumerate(("controller", "failsafe")):
             self.DeclareVectorOutputPort(
                 f"{name}.active", 1, lambda context, output, index=index: output.SetFromVector(
@@ -97,7 +99,7 @@ class FailsafeSwitch(CommandSwitch):
             "arm", 2, lambda context, output: output.SetFromVector(
                 [1.0, 1.0] if self._in_failsafe(context.get_discrete_state(self._state)
                                                 .get_value()) else self._arm.Eval(context)),
-            {self.all_input_ports_ticket(), self.all_state_ticket()})
+            {self._arm.ticket(), self.all_state_ticket()})
         self.DeclareVectorOutputPort("manager_status", MANAGER_STATUS.size, self._calc_status,
                                      {self.all_state_ticket()})
 
