@@ -7,7 +7,9 @@ bindings (program_qp.ProgramQp), and each `solve()` re-reads only the program's 
 and constraint bounds, hands them to OSQP's `update` and solves from the previous primal-dual
 solution. The program stays the single description of the QP (quadratic and linear costs, linear
 and bounding-box constraints); its Hessian and constraint matrices must not change after
-construction.
+construction. A caller that changes only some bindings between solves names them (`changing`):
+only these are re-read, and OSQP is handed only what they hold (q for costs, l and u for
+constraints).
 
 Per tick the workspace is driven through the osqp extension's solver object itself (its
 `update_data_vec`, `solve`, `info`, `solution`), the calls the `osqp.OSQP` wrapper makes, without
@@ -28,16 +30,18 @@ __all__ = ["PersistentOsqp", "QpResult", "SOLVED"]
 
 
 class PersistentOsqp:
-    """`PersistentOsqp(prog, eps=..., max_iter=...)`; `solve()` after updating the bindings."""
+    """`PersistentOsqp(prog, eps=..., max_iter=..., changing=...)`; `solve()` after updating the
+    bindings (those in `changing` only, when given: the others are read once, here)."""
 
     def __init__(self, prog: MathematicalProgram, eps: float = 1e-4, max_iter: int = 4000,
-                 polishing: bool = False):
+                 polishing: bool = False, changing=None):
         self.prog = prog
         self.qp = ProgramQp(prog)
-        lower, upper = self._bounds()
+        self._changing = self.qp.positions(changing)
+        lower, upper = self._clip(self.qp.lower, self.qp.upper)
         self.solver = osqp.OSQP()
         self.solver.setup(P=sparse.triu(sparse.csc_matrix(self.qp.P), format="csc"),
-                          q=self.qp.q(), A=sparse.csc_matrix(self.qp.A), l=lower, u=upper,
+                          q=self.qp.linear, A=sparse.csc_matrix(self.qp.A), l=lower, u=upper,
                           eps_abs=eps, eps_rel=eps, max_iter=max_iter, polishing=polishing,
                           warm_starting=True, verbose=False)
         # The extension's solver object (what osqp.OSQP.update/solve call); None: use the wrapper
@@ -48,23 +52,29 @@ class PersistentOsqp:
             self._workspace = None
         self.iterations = 0  # of the last solve
 
-    def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lower, upper = self.qp.bounds()
-        np.maximum(lower, -INFINITY, out=lower)
-        np.minimum(upper, INFINITY, out=upper)
-        return lower, upper
+    @staticmethod
+    def _clip(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds, in place, within OSQP's infinity."""
+        return np.maximum(lower, -INFINITY, out=lower), np.minimum(upper, INFINITY, out=upper)
+
+    def _data(self) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """q, l and u re-read from the changing bindings (None: none of them holds it)."""
+        costs, bounded = self._changing
+        self.qp.refresh(costs, bounded)
+        lower, upper = self._clip(self.qp.lower, self.qp.upper) if bounded else (None, None)
+        return self.qp.linear if costs else None, lower, upper
 
     def solve(self) -> QpResult:
         """Solves with the program's current linear cost terms and bounds, warm-started."""
-        lower, upper = self._bounds()
+        q, lower, upper = self._data()
         workspace = self._workspace
         if workspace is None:
-            self.solver.update(q=self.qp.q(), l=lower, u=upper)
+            self.solver.update(q=q, l=lower, u=upper)
             result = self.solver.solve(raise_error=False)  # the status says what failed
             status, iterations = int(result.info.status_val), int(result.info.iter)
             x = np.asarray(result.x, float)
         else:
-            workspace.update_data_vec(q=self.qp.q(), l=lower, u=upper)
+            workspace.update_data_vec(q=q, l=lower, u=upper)
             workspace.solve()
             info = workspace.info
             status, iterations = int(info.status_val), int(info.iter)

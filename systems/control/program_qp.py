@@ -4,6 +4,9 @@ min 1/2 t'P t + q't  s.t.  l <= A t <= u, with t all decision variables in the p
 P and A are read at construction and must not change afterwards (a receding-horizon controller
 changes only linear cost terms and bounds per tick, L(27)); `q()` and `bounds()` re-read the
 program's current linear cost terms and constraint bounds with one vectorized gather per binding.
+`refresh(*positions(changing))` re-reads only the bindings a caller declared as changing into
+buffers it keeps (`linear`, `lower`, `upper`): every binding read costs a call into Drake, and
+such a controller changes one cost and one constraint of several.
 The persistent QP back ends (persistent_osqp.py, persistent_daqp.py) set their workspaces up from
 this and hand it the new vectors each tick.
 """
@@ -21,9 +24,20 @@ class QpResult:
     iterations: int
 
 
+def variable_index(prog: MathematicalProgram, variables) -> slice | np.ndarray:
+    """The variables' positions among the program's decision variables: a slice where
+    contiguous (NumPy indexes a slice without building an index array, which dominated the
+    per-tick gather otherwise)."""
+    index = np.asarray(prog.FindDecisionVariableIndices(variables), np.intp)
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
+
+
 class ProgramQp:
     """`ProgramQp(prog)`: `P`, `A` (dense), `box_variable` (per row of A: the variable of a
-    bounding-box row, -1 for a general linear row); `q()`, `bounds()` per tick."""
+    bounding-box row, -1 for a general linear row); `q()`, `bounds()` per tick, or
+    `refresh(*positions(changing))` and its buffers `linear` (q), `lower`, `upper`."""
 
     def __init__(self, prog: MathematicalProgram):
         self.prog = prog
@@ -36,10 +50,10 @@ class ProgramQp:
                              "with linear and bounding-box constraints")
         n = self.num_vars = prog.num_vars()
         # Bindings and their variable indices, looked up once (the lookup dominates otherwise).
-        self._quadratic = [(b, self._index(b)) for b in prog.quadratic_costs()]
-        self._linear = [(b, self._index(b)) for b in prog.linear_costs()]
+        quadratic = [(b, self._index(b)) for b in prog.quadratic_costs()]
+        linear = [(b, self._index(b)) for b in prog.linear_costs()]
         self.P = np.zeros((n, n))
-        for binding, index in self._quadratic:
+        for binding, index in quadratic:
             rows = np.arange(n)[index]
             self.P[np.ix_(rows, rows)] += binding.evaluator().Q()
         rows, box_variable = [], []
@@ -59,31 +73,64 @@ class ProgramQp:
         # (evaluator, rows of A): an evaluator is updated in place, so it is looked up once
         self._bounded = [(binding.evaluator(), slice(end - len(block), end))
                          for binding, end, block in zip(self._constraints, ends, rows)]
-        self._quadratic = [(binding.evaluator(), index) for binding, index in self._quadratic]
-        self._linear = [(binding.evaluator(), index) for binding, index in self._linear]
+        # (evaluator, variable index, reader of its linear term), quadratic costs first
+        self._costs = [(binding.evaluator(), index, binding.evaluator().b)
+                       for binding, index in quadratic] \
+            + [(binding.evaluator(), index, binding.evaluator().a) for binding, index in linear]
         self.box_variable = np.concatenate(box_variable).astype(int) if rows \
             else np.zeros(0, int)
+        # `refresh`'s buffers: each cost's linear term as last read, their sum q, and l, u
+        self._terms = [read() for _, _, read in self._costs]
+        self.linear = self._sum(self._terms, np.zeros(n))
+        self.lower, self.upper = self.bounds()
 
     def _index(self, binding) -> slice | np.ndarray:
-        """The binding's variables' positions: a slice where contiguous (NumPy indexes a slice
-        without building an index array, which dominated the per-tick gather otherwise)."""
-        index = np.asarray(self.prog.FindDecisionVariableIndices(binding.variables()), np.intp)
-        if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
-            return slice(int(index[0]), int(index[0]) + len(index))
-        return index
+        return variable_index(self.prog, binding.variables())
+
+    def _sum(self, terms, out: np.ndarray) -> np.ndarray:
+        """The costs' linear terms summed into `out` (zeroed first), in the costs' order."""
+        out.fill(0.0)
+        for (_, index, _), term in zip(self._costs, terms):
+            out[index] += term
+        return out
+
+    def _read_bounds(self, positions, lower: np.ndarray, upper: np.ndarray) -> None:
+        """The bounds of the constraints at `positions` into their rows of `lower`, `upper`."""
+        for k in positions:
+            evaluator, rows = self._bounded[k]
+            lower[rows], upper[rows] = evaluator.lower_bound(), evaluator.upper_bound()
 
     def q(self) -> np.ndarray:
         """The linear cost term, sum of the quadratic costs' b and the linear costs' a."""
-        q = np.zeros(self.num_vars)
-        for evaluator, index in self._quadratic:
-            q[index] += evaluator.b()
-        for evaluator, index in self._linear:
-            q[index] += evaluator.a()
-        return q
+        return self._sum([read() for _, _, read in self._costs], np.zeros(self.num_vars))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """l and u of the rows of A (+-inf where unbounded)."""
         lower, upper = np.empty(len(self.A)), np.empty(len(self.A))
-        for evaluator, rows in self._bounded:
-            lower[rows], upper[rows] = evaluator.lower_bound(), evaluator.upper_bound()
+        self._read_bounds(range(len(self._bounded)), lower, upper)
         return lower, upper
+
+    def positions(self, bindings=None) -> tuple[list[int], list[int]]:
+        """Where `bindings` (None: all of the program's costs and constraints) are among the
+        costs and among the constrained rows' blocks, for `refresh`."""
+        if bindings is None:
+            return list(range(len(self._costs))), list(range(len(self._bounded)))
+        evaluators = [binding.evaluator() for binding in bindings]
+        wanted = {id(evaluator) for evaluator in evaluators}
+        costs = [k for k, (evaluator, _, _) in enumerate(self._costs) if id(evaluator) in wanted]
+        bounded = [k for k, (evaluator, _) in enumerate(self._bounded) if id(evaluator) in wanted]
+        found = {id(self._costs[k][0]) for k in costs} \
+            | {id(self._bounded[k][0]) for k in bounded}
+        if found != wanted:
+            raise ValueError("not all of the bindings are costs or constraints of the program")
+        return costs, bounded
+
+    def refresh(self, costs: list[int], bounded: list[int]) -> None:
+        """Re-reads the linear terms of the costs and the bounds of the constraints at these
+        `positions` into `linear` (q, summed again) and `lower`, `upper` (their rows); the other
+        bindings keep the data last read. The buffers are overwritten by the next refresh."""
+        if costs:
+            for k in costs:
+                self._terms[k] = self._costs[k][2]()
+            self._sum(self._terms, self.linear)
+        self._read_bounds(bounded, self.lower, self.upper)
