@@ -72,6 +72,14 @@ class DownCameraParams:
                          self.rectified_scale, self.X_BC().GetAsMatrix4())
 
 
+class PublishedFrame(CameraFrame):
+    """A frame once exposed: nothing changes it afterwards, so Drake's copies of the camera's state
+    and output (copy.deepcopy, about eight per frame) share it instead of copying its arrays."""
+
+    def __deepcopy__(self, memo) -> "PublishedFrame":
+        return self
+
+
 class TimedCamera(LeafSystem):
     """Exposure and publication timing shared by the camera sources. Subclasses implement
     `_expose(context) -> CameraFrame | None` (None: the frame is lost).
@@ -97,7 +105,8 @@ class TimedCamera(LeafSystem):
         """Schedules `frame` (None: lost) for publication `latency` after this exposure."""
         pending = list(context.get_abstract_state(self._pending).get_value())
         if frame is not None:
-            pending.append((context.get_time() + self._params.latency, frame))
+            release = context.get_time() + self._params.latency
+            pending.append((release, PublishedFrame(**vars(frame))))
         state.get_mutable_abstract_state(self._pending).set_value(pending)
 
     def _on_release(self, context, state):
@@ -210,8 +219,18 @@ class GeometricDownCamera(TimedCamera):
         self._X_BC = params.X_BC()
         self._body = int(body_index)
         self._platform = int(platform_index)
-        self._legs = [(np.asarray(a, float), np.asarray(b, float), float(r)) for a, b, r in legs]
+        # the legs' capsules (L, 3), (L, 3), (L,) and the pattern's homogeneous keypoints (4, N)
+        self._leg_a = np.array([a for a, _, _ in legs], float).reshape(-1, 3)
+        self._leg_b = np.array([b for _, b, _ in legs], float).reshape(-1, 3)
+        self._leg_radius = np.array([r for _, _, r in legs], float)
+        self._p_TK_h = _homogeneous(self._p_TK)
+        self._cos_max_view = np.cos(np.radians(params.max_view_angle))
         self._outline_T = None if outline_T is None else np.asarray(outline_T, float)
+        if self._outline_T is not None:  # the perimeter's edges and their arc-length intervals
+            self._outline_edges = np.roll(self._outline_T, -1, axis=0) - self._outline_T
+            self._outline_lengths = np.linalg.norm(self._outline_edges, axis=1)
+            self._outline_ends = np.cumsum(self._outline_lengths)
+            self._outline_starts = np.concatenate([[0], self._outline_ends])
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(
             [RigidTransform()]))
         self._velocities = self.DeclareAbstractInputPort(
@@ -308,48 +327,46 @@ class GeometricDownCamera(TimedCamera):
         """Edges and corners of the car's body: uniform along its top rectangle's perimeter."""
         if self._outline_T is None:
             return None
-        corners = self._outline_T
-        edges = np.roll(corners, -1, axis=0) - corners
-        lengths = np.linalg.norm(edges, axis=1)
+        lengths, edges = self._outline_lengths, self._outline_edges
         s = rng.uniform(0, lengths.sum(), n)
-        k = np.searchsorted(np.cumsum(lengths), s, side="right").clip(0, 3)
-        fraction = (s - np.concatenate([[0], np.cumsum(lengths)])[k]) / lengths[k]
-        return corners[k] + fraction[:, None] * edges[k]
+        k = np.searchsorted(self._outline_ends, s, side="right").clip(0, 3)
+        fraction = (s - self._outline_starts[k]) / lengths[k]
+        return self._outline_T[k] + fraction[:, None] * edges[k]
 
     def observe(self, X_TC: RigidTransform) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free distorted pixels of every pattern keypoint and whether each can be seen (see
         `_visible`)."""
-        return self._visible(X_TC, self._p_TK)
+        return self._visible(X_TC, self._p_TK, self._p_TK_h)
 
-    def _visible(self, X_TC: RigidTransform, p_TK: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _visible(self, X_TC: RigidTransform, p_TK: np.ndarray,
+                 p_TK_h: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Distorted pixels of points on the platform (T) and whether each can be seen: in front of
         the camera, within the lens's field and the image (minus the border margin), the pattern
-        seen from above within `max_view_angle` of its normal, and no leg on the ray."""
-        p = self._params
+        seen from above within `max_view_angle` of its normal, and no leg on the ray. `p_TK_h`:
+        the points' homogeneous coordinates, when known."""
         p_TC = X_TC.translation()
-        p_CK = (X_TC.inverse().GetAsMatrix34() @ np.vstack([p_TK.T, np.ones(len(p_TK))])).T
+        p_TK_h = _homogeneous(p_TK) if p_TK_h is None else p_TK_h
+        p_CK = (X_TC.inverse().GetAsMatrix34() @ p_TK_h).T
         in_front = p_CK[:, 2] > 0.05
         radius = np.linalg.norm(p_CK[:, :2], axis=1) / np.maximum(p_CK[:, 2], 1e-9)
         in_field = in_front & (radius < self._max_radius)
         uv = np.full((len(p_CK), 2), np.nan)
-        if in_field.any():
-            uv[in_field] = self._lens.project(p_CK[in_field])
+        if not in_field.any():
+            return uv, in_field
+        uv[in_field] = self._lens.project(p_CK[in_field])
         rays = p_TC - p_TK
         cos_view = rays[:, 2] / np.linalg.norm(rays, axis=1)
-        facing = cos_view > np.cos(np.radians(p.max_view_angle))
-        visible = in_field & facing & self._lens.in_image(np.nan_to_num(uv, nan=-1e9),
-                                                          p.border_margin)
-        if self._legs and visible.any():
+        facing = cos_view > self._cos_max_view
+        # (nan pixels, outside the field, compare false: not in the image)
+        visible = in_field & facing & self._lens.in_image(uv, self._params.border_margin)
+        if len(self._leg_radius) and visible.any():
             visible &= ~self.occluded(self._X_BC.multiply(p_CK.T).T)
         return uv, visible
 
     def occluded(self, p_BK: np.ndarray) -> np.ndarray:
         """Whether the ray from the camera to each point (in B) passes one of the legs."""
-        p_BC = self._X_BC.translation()
-        hidden = np.zeros(len(p_BK), bool)
-        for a, b, radius in self._legs:
-            hidden |= _segment_distances(p_BC, p_BK, a, b) < radius
-        return hidden
+        distances = _segment_distances(self._X_BC.translation(), p_BK, self._leg_a, self._leg_b)
+        return np.any(distances < self._leg_radius[:, None], axis=0)
 
 
 def _moved(X_WA: RigidTransform, V_WA: SpatialVelocity, dt: float) -> RigidTransform:
@@ -374,19 +391,26 @@ def _uniform_in_disc(rng, n: int, radius: float) -> np.ndarray:
     return np.column_stack([r * np.cos(angle), r * np.sin(angle)])
 
 
+def _homogeneous(p: np.ndarray) -> np.ndarray:
+    """(4, N) homogeneous coordinates of points (N, 3)."""
+    return np.vstack([p.T, np.ones(len(p))])
+
+
 def _segment_distances(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distances between the segments p-q[i] (N) and a-b (closest points, clamped)."""
+    """Distances (M, N) between the segments p-q[i] (N) and a[j]-b[j] (M) (closest points,
+    clamped). The dot products are taken segment by segment (the same sums as for one)."""
     d1 = q - p
     d2 = b - a
     r = p - a
     aa = np.einsum("ij,ij->i", d1, d1)
-    ee = d2 @ d2
-    f = r @ d2
-    c = d1 @ r
-    bb = d1 @ d2
+    ee = np.array([d @ d for d in d2])[:, None]
+    f = np.array([r_j @ d for r_j, d in zip(r, d2)])[:, None]
+    c = np.array([d1 @ r_j for r_j in r]).reshape(len(a), len(q))
+    bb = np.array([d1 @ d for d in d2]).reshape(len(a), len(q))
     denominator = aa * ee - bb ** 2
     s = np.where(denominator > 1e-12, np.clip((bb * f - c * ee) / np.where(
         denominator > 1e-12, denominator, 1.0), 0, 1), 0.0)
     t = np.clip((bb * s + f) / ee, 0, 1)
     s = np.clip((bb * t - c) / aa, 0, 1)
-    return np.linalg.norm(p + s[:, None] * d1 - (a + t[:, None] * d2), axis=1)
+    return np.linalg.norm(p + s[..., None] * d1 - (a[:, None] + t[..., None] * d2[:, None]),
+                          axis=2)
