@@ -33,6 +33,9 @@ class TargetEkfParams:
     initial_velocity_std: float = bounded(5.0, 0.0, 100.0, "m/s")
 
 
+_I3, _I9 = np.eye(3), np.eye(9)
+
+
 def skew(a: np.ndarray) -> np.ndarray:
     return np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0.0]])
 
@@ -110,7 +113,7 @@ class TargetEkf:
         x, y, z = p_CK
         U = np.array([[K[0, 0] / z, 0.0, -K[0, 0] * x / z ** 2],
                       [0.0, K[1, 1] / z, -K[1, 1] * y / z ** 2]])   # L(34), D = I
-        J = np.hstack([np.eye(3), -skew(r_W)])                       # L(35)
+        J = np.hstack([_I3, -skew(r_W)])                             # L(35)
         H = np.zeros((2, 9))
         H[:, 0:6] = U @ R_CW @ J                                     # L(33)
         uv = np.array([K[0, 0] * x / z + K[0, 2], K[1, 1] * y / z + K[1, 2]])
@@ -125,17 +128,18 @@ class TargetEkf:
         """One keypoint measurement: accepted (passes the chi-square test) and its d^2."""
         H = prediction.H
         r = np.asarray(uv, float) - prediction.uv
-        S = H @ self.P @ H.T + self._R
+        HP = H @ self.P
+        S = HP @ H.T + self._R
         d2 = float(r @ np.linalg.solve(S, r))
         if not np.isfinite(d2) or d2 > self.params.chi2_threshold:
             return False, d2
-        K = np.linalg.solve(S, H @ self.P).T
+        K = np.linalg.solve(S, HP).T
         dx = K @ r
         self.p = self.p + dx[0:3]
         self.q = quaternion_product(quaternion_from_rotation_vector(dx[3:6]), self.q)
         self.q /= np.linalg.norm(self.q)
         self.v = self.v + dx[6:9]
-        A = np.eye(9) - K @ H
+        A = _I9 - K @ H
         self.P = A @ self.P @ A.T + K @ self._R @ K.T
         self.P = (self.P + self.P.T) / 2
         return True, d2

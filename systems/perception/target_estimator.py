@@ -25,7 +25,6 @@ the keypoints' ids: an idealization that skips association, kept as an option.)
 Between frames the estimate is predicted to the output time, so its covariance grows while no
 measurement arrives.
 """
-import copy
 import dataclasses as dc
 import itertools
 
@@ -80,39 +79,39 @@ PERCEPTION_STATUS = VectorLayout("perception_status", [
 
 
 class PoseHistory:
-    """Recent state-estimate poses of B, interpolated at camera stamps."""
+    """Recent state-estimate poses of B, interpolated at camera stamps: `samples` rows
+    (t, p (3), q (4), v (3)), a new array at every change (copies may share it)."""
+    P, Q, V = slice(1, 4), slice(4, 8), slice(8, 11)
 
     def __init__(self, length: float):
         self.length = length
-        self.t = np.zeros(0)
-        self.p = np.zeros((0, 3))
-        self.q = np.zeros((0, 4))
-        self.v = np.zeros((0, 3))
+        self.samples = np.zeros((0, 11))
 
     def add(self, t: float, p, q, v) -> None:
-        if len(self.t) and t <= self.t[-1]:
+        samples = self.samples
+        if len(samples) and t <= samples[-1, 0]:
             return
-        keep = self.t > t - self.length
-        self.t = np.append(self.t[keep], t)
-        self.p = np.vstack([self.p[keep], p])
-        self.q = np.vstack([self.q[keep], q])
-        self.v = np.vstack([self.v[keep], v])
+        keep = samples[:, 0] > t - self.length
+        self.samples = np.vstack([samples[keep], np.concatenate([[t], p, q, v])])
 
     def clear(self) -> None:
         self.__init__(self.length)
 
     def at(self, t: float, max_extrapolation: float) -> RigidTransform | None:
-        if not len(self.t) or t < self.t[0] or t > self.t[-1] + max_extrapolation:
+        samples, P, Q = self.samples, self.P, self.Q
+        times = samples[:, 0]
+        if not len(times) or t < times[0] or t > times[-1] + max_extrapolation:
             return None
-        if t >= self.t[-1]:
-            p = self.p[-1] + self.v[-1] * (t - self.t[-1])
-            q = self.q[-1]
+        if t >= times[-1]:
+            p = samples[-1, P] + samples[-1, self.V] * (t - times[-1])
+            q = samples[-1, Q]
         else:
-            i = int(np.searchsorted(self.t, t, side="right")) - 1
-            a = (t - self.t[i]) / (self.t[i + 1] - self.t[i])
-            p = (1 - a) * self.p[i] + a * self.p[i + 1]
-            q1 = self.q[i + 1] if self.q[i] @ self.q[i + 1] >= 0 else -self.q[i + 1]
-            q = (1 - a) * self.q[i] + a * q1
+            i = int(np.searchsorted(times, t, side="right")) - 1
+            a = (t - times[i]) / (times[i + 1] - times[i])
+            before, after = samples[i], samples[i + 1]
+            p = (1 - a) * before[P] + a * after[P]
+            q1 = after[Q] if before[Q] @ after[Q] >= 0 else -after[Q]
+            q = (1 - a) * before[Q] + a * q1
         return RigidTransform(Quaternion(q / np.linalg.norm(q)), p)
 
 
@@ -129,12 +128,22 @@ class EstimatorState:
     status: np.ndarray = dc.field(default_factory=lambda: np.zeros(PERCEPTION_STATUS.size))
 
     def __deepcopy__(self, memo) -> "EstimatorState":
-        """A copy for the update and for Drake's clones of the abstract state (copy.deepcopy,
-        several per update): the filter and the pose history assign new arrays, never write
+        """Drake's clones of the abstract state (copy.deepcopy, two per update: the copy that the
+        update changes, and back): the filter and the pose history assign new arrays, never write
         into theirs, so shallow copies of them may share the arrays (and the parameters); the
         status, written in place, is copied."""
-        return dc.replace(self, ekf=copy.copy(self.ekf), poses=copy.copy(self.poses),
-                          status=self.status.copy())
+        copied = _shallow_copy(self)
+        copied.ekf, copied.poses = _shallow_copy(self.ekf), _shallow_copy(self.poses)
+        copied.status = self.status.copy()
+        return copied
+
+
+def _shallow_copy(obj):
+    """copy.copy of a plain object (a new one sharing its attributes), without the copy module's
+    protocol lookups."""
+    copied = object.__new__(type(obj))
+    copied.__dict__.update(obj.__dict__)
+    return copied
 
 
 class TargetEstimator(LeafSystem):
@@ -166,7 +175,8 @@ class TargetEstimator(LeafSystem):
 
     # --- events ---------------------------------------------------------------------------------
     def _update(self, context, state):
-        st = copy.deepcopy(context.get_abstract_state(self._state).get_value())
+        # Drake hands the update a copy of the state (EstimatorState.__deepcopy__): change it there
+        st = state.get_mutable_abstract_state(self._state).get_value()
         estimate = self._estimate.Eval(context)
         if STATE_ESTIMATE.get(estimate, "valid") > 0.5:
             self._record_pose(st, estimate)
@@ -176,7 +186,6 @@ class TargetEstimator(LeafSystem):
                 self._keypoint_tracker()  # built before the first image's timing
             with self.compute_timer.measure(context.get_time()):
                 self.process(st, frame)
-        state.get_mutable_abstract_state(self._state).set_value(st)
 
     def _record_pose(self, st: EstimatorState, estimate: np.ndarray) -> None:
         counter = STATE_ESTIMATE.get(estimate, "frame_counter")
@@ -379,6 +388,9 @@ def associate(candidates: np.ndarray, predicted: np.ndarray,
     return [(k, candidates[j]) for k, j in enumerate(nearest) if np.isfinite(distances[k, j])]
 
 
+_NEXT = [1, 2, 3, 0]   # each corner's successor around a quad (np.roll by -1, cheaper)
+
+
 def convex_quads(uv: np.ndarray, min_area: float, min_inside: int) -> np.ndarray:
     """(M, 4) indices of the candidates' convex quadrilaterals of at least `min_area` px^2 that
     hold at least `min_inside` other candidates, each ordered like the detector's quads
@@ -393,10 +405,10 @@ def convex_quads(uv: np.ndarray, min_area: float, min_inside: int) -> np.ndarray
     order = np.argsort(angle, axis=1)
     quads = np.take_along_axis(quads, order, axis=1)
     corners = uv[quads]
-    edges = np.roll(corners, -1, axis=1) - corners
-    turns = _cross(edges, np.roll(edges, -1, axis=1))
+    edges = corners[:, _NEXT] - corners
+    turns = _cross(edges, edges[:, _NEXT])
     # angles increase with v down: clockwise on screen, positive turns and shoelace area
-    area = 0.5 * _cross(corners, np.roll(corners, -1, axis=1)).sum(axis=1)
+    area = 0.5 * _cross(corners, corners[:, _NEXT]).sum(axis=1)
     keep = np.all(turns > 0, axis=1) & (area >= min_area)
     quads, corners, edges, area = quads[keep], corners[keep], edges[keep], area[keep]
     inside = np.all(_cross(edges[:, :, None, :], uv[None, None, :, :] - corners[:, :, None, :])
