@@ -17,6 +17,12 @@ from alight.systems.rotations import (quaternion_from_rotation_vector, quaternio
                                       rotation_matrix, heading)
 
 
+# the fields read every tick
+_P_WB, _Q_WB = GROUND_TRUTH.slice("p_WB"), GROUND_TRUTH.slice("q_WB")
+_P_EB, _V_EB = STATE_ESTIMATE.slice("p_EB"), STATE_ESTIMATE.slice("v_EB")
+_HEADING, _VALID = STATE_ESTIMATE.slice("heading").start, STATE_ESTIMATE.slice("valid").start
+
+
 @dc.dataclass
 class MocapParams:
     period: float = bounded(0.01, 0.001, 1.0, "s")             # 100 Hz
@@ -35,6 +41,7 @@ class Mocap(LeafSystem):
     def __init__(self, params: MocapParams):
         super().__init__()
         self._p = params
+        self._attitude_std = np.radians(params.attitude_noise_std)   # [rad]
         self._truth = self.DeclareVectorInputPort("ground_truth", GROUND_TRUTH.size)
         self._noise = self.DeclareVectorInputPort("noise", 6)
         self._xd = self.DeclareDiscreteState(STATE_ESTIMATE.size)
@@ -45,22 +52,21 @@ class Mocap(LeafSystem):
         previous = context.get_discrete_state(self._xd).get_value()
         truth = self._truth.Eval(context)
         noise = self._noise.Eval(context)
-        p = GROUND_TRUTH.get(truth, "p_WB") + self._p.position_noise_std * noise[:3]
-        q = quaternion_product(GROUND_TRUTH.get(truth, "q_WB"), quaternion_from_rotation_vector(
-            np.radians(self._p.attitude_noise_std) * noise[3:]))
-        first = STATE_ESTIMATE.get(previous, "valid") < 0.5
+        p = truth[_P_WB] + self._p.position_noise_std * noise[:3]
+        q = quaternion_product(truth[_Q_WB], quaternion_from_rotation_vector(
+            self._attitude_std * noise[3:]))
+        first = previous[_VALID] < 0.5
         dt = self._p.period
-        raw_v = np.zeros(3) if first else (p - STATE_ESTIMATE.get(previous, "p_EB")) / dt
+        raw_v = np.zeros(3) if first else (p - previous[_P_EB]) / dt
         alpha = 0.0 if first else self._p.velocity_filter
-        v = alpha * STATE_ESTIMATE.get(previous, "v_EB") + (1 - alpha) * raw_v
-        a = np.zeros(3) if first else (v - STATE_ESTIMATE.get(previous, "v_EB")) / dt
+        v = alpha * previous[_V_EB] + (1 - alpha) * raw_v
+        a = np.zeros(3) if first else (v - previous[_V_EB]) / dt
         eta = heading(rotation_matrix(q))
-        eta_rate = 0.0 if first else np.angle(np.exp(1j * (
-            eta - STATE_ESTIMATE.get(previous, "heading")))) / dt
+        eta_rate = 0.0 if first else np.angle(np.exp(1j * (eta - previous[_HEADING]))) / dt
         var_p = self._p.position_noise_std ** 2
         var_v = 2 * var_p / dt ** 2 * (1 - alpha) / (1 + alpha)
         discrete_state.set_value(self._xd, STATE_ESTIMATE.pack(
             stamp=context.get_time(), p_EB=p, v_EB=v, a_EB=a, q_EB=q, heading=eta,
             heading_rate=eta_rate, var_pv=[var_p] * 3 + [var_v] * 3,
-            var_heading=np.radians(self._p.attitude_noise_std) ** 2, frame_id=0.0,
+            var_heading=self._attitude_std ** 2, frame_id=0.0,
             frame_counter=0.0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0))
