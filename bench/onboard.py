@@ -87,7 +87,8 @@ def _key(value):
 class StreamRecorder(LeafSystem):
     """Inputs `imu`, `rgbd`, `down_image` (abstract) and `fc_attitude`, `fc_status` (vectors),
     each recorded at every simulator step where its value changed, with the simulation time it
-    appeared at; frames are written to `folder/<stream>/<index>.pkl` as they come (`index`:
+    appeared at: a per-step publish at the end of a step sees what the updates at the step's
+    start made, so a change is stamped with the step's start (the previous step's end); frames are written to `folder/<stream>/<index>.pkl` as they come (`index`:
     the frame's time). Input `ground_truth` is sampled every TRUTH_PERIOD."""
 
     def __init__(self, folder: Path):
@@ -106,11 +107,12 @@ class StreamRecorder(LeafSystem):
         self.values = {name: [] for name in ["imu", *self._vectors]}
         self.truth = ([], [])
         self._last = {}
+        self._step_start = 0.0    # when the updates this publish sees took place
         self.DeclarePerStepPublishEvent(self._record)
         self.DeclarePeriodicPublishEvent(TRUTH_PERIOD, 0.0, self._record_truth)
 
     def _record(self, context):
-        t = context.get_time()
+        t, self._step_start = self._step_start, context.get_time()
         for name, port in self._abstract.items():
             value = port.Eval(context)
             key = _key(value)

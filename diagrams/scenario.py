@@ -176,6 +176,11 @@ def check_scenario(scenario: Scenario, where: str) -> None:
         raise ConfigError(f"{where}: key 'mission' is a {type(scenario.mission).__name__}; the "
                           f"'{onboard.stack}' stack (key 'onboard.stack') flies a "
                           f"{kind.__name__} (tag it !{kind.__name__})")
+    if onboard.estimator == "vio" and abs(onboard.vio.period - scenario.vehicle.imu.period) > 1e-9:
+        raise ConfigError(f"{where}: key 'onboard.vio.period' = {onboard.vio.period} s: the VIO "
+                          f"integrates each IMU sample over its period, and the vehicle's IMU "
+                          f"samples every {scenario.vehicle.imu.period} s (key "
+                          f"'vehicle.imu.period'): give both the same period")
     if onboard.estimator != "vio":
         scenario_odometry(onboard.estimator, onboard.estimator_bank, onboard.linear_model,
                           where, others=("vio",), key="onboard.estimator")

@@ -46,7 +46,7 @@ class LinkParams:
     command_timeout: float = bounded(0.3, 0.01, 10.0, "s")  # wait for an ack before resending
     command_attempts: int = bounded(5, 1, 50)
     imu_message: str = choice("HIGHRES_IMU", "SCALED_IMU")
-    imu_rate: float = bounded(200.0, 1.0, 4000.0, "Hz")
+    imu_rate: float = bounded(250.0, 1.0, 4000.0, "Hz")
     attitude_rate: float = bounded(100.0, 1.0, 1000.0, "Hz")
     status_rate: float = bounded(10.0, 0.2, 100.0, "Hz")
     imu_queue: int = bounded(4000, 10, 1000000)    # samples held until the IMU port takes them

@@ -12,6 +12,10 @@ within these tolerances:
 - every mode transition within 0.1 s (two mission periods) of its recorded time;
 - touchdown within 0.1 s, tracking duration within 0.1 s;
 - e_xy within 2 cm, touchdown speed within 0.15 m/s, the car's speed within 0.05 m/s.
+The 2 ms harmonic rate grid (plant step 1 -> 2 ms, IMU 200 -> 250 Hz, issue 18) moved the flown
+landing against the 1 ms grid by: e_xy +0.1 mm, touchdown speed +0.036 m/s (+0.099 -> +0.135
+from the recorded), the car's speed +0.1 mm/s, tracking, touchdown and every transition unchanged
+at the mission's 50 ms.
 """
 import pytest
 

@@ -10,6 +10,7 @@ What: in Landing Phase 2, under `height` above the target, the command is level 
 import numpy as np
 import pytest
 from pydrake.math import RollPitchYaw
+from pydrake.systems.analysis import Simulator
 
 from alight.diagrams.analysis.landing import MAX_TILT, score_landing
 from alight.diagrams.running.runner import run as run_scenario
@@ -62,6 +63,11 @@ def levelled(mode: Mode, height: float, valid: float = 1.0, level_height: float 
         p_EB=[5.0, 2.0, 1.0 + height]))
     dut.GetInputPort("target_estimate").FixValue(context, TARGET_ESTIMATE.vector(
         p_WT=[5.2, 2.1, 1.0], valid=valid))
+    unlevelled = dut.GetOutputPort("fc_command").Eval(context).copy()
+    Simulator(dut, context).AdvanceTo(0.005)    # the decision of the tick at t = 0
+    assert np.array_equal(unlevelled, FC_COMMAND.vector(
+        stamp=3.0, mode=1.0, q_WD=RollPitchYaw(0.1, -0.2, 0.7).ToQuaternion().wxyz(),
+        w_D=[0.1, 0.2, 0.3], thrust=0.6, arm=1.0))    # nothing is levelled before a decision
     return dut.GetOutputPort("fc_command").Eval(context)
 
 

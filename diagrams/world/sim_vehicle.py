@@ -19,7 +19,7 @@ from alight.diagrams.world.rgbd_camera import add_rgbd_camera, add_rgbd_scene
 from alight.diagrams.world.target import add_target_scene, add_target_systems, perceived_ground
 from alight.models import model_path
 from alight.systems.autopilot.config import FlightControllerParams
-from alight.systems.params import bounded, load_params, param_file
+from alight.systems.params import ConfigError, bounded, load_params, param_file
 from alight.systems.plant.drag import AerodynamicDrag
 from alight.systems.plant.hexacopter import (HexacopterParams, add_hexacopter, airframe,
                                              propeller_infos)
@@ -39,7 +39,7 @@ from alight.systems.target.vehicle import TargetParams
 @dc.dataclass
 class SimVehicleConfig:
     airframe: HexacopterParams = param_file(HexacopterParams, "hexacopter_f550.yaml")
-    time_step: float = bounded(0.001, 1e-4, 0.01, "s")  # discrete MultibodyPlant (SAP contact)
+    time_step: float = bounded(0.002, 1e-4, 0.01, "s")  # discrete MultibodyPlant (SAP contact)
     # Body drag sampled and held at this period (the flight controller's 250 Hz), 0: at every
     # plant step (AerodynamicDrag).
     drag_period: float = bounded(0.004, 0.0, 0.1, "s")
@@ -66,6 +66,23 @@ def load_sim_vehicle_config(filename: str = "sim_vehicle.yaml") -> SimVehicleCon
     return load_params(SimVehicleConfig, model_path(filename))
 
 
+def check_rate_grid(config: SimVehicleConfig) -> None:
+    """Every sampled part of the vehicle (IMU, flight controller, its estimate, drag, contacts)
+    runs at a multiple of the plant's `time_step`, so that each sample reads the plant state of
+    its own instant (between steps the discrete plant holds the next step's state). Raises
+    ConfigError naming the key otherwise."""
+    periods = {"imu.period": config.imu.period,
+               "flight_controller.period": config.flight_controller.period,
+               "fc_estimate.period": config.fc_estimate.period,
+               "drag_period": config.drag_period, "contact_period": config.contact_period}
+    for key, period in periods.items():
+        steps = period / config.time_step
+        if period and abs(steps - round(steps)) > 1e-6:
+            raise ConfigError(f"vehicle: key '{key}' = {period} s is not a multiple of the plant's "
+                              f"time_step {config.time_step} s: its samples would read the state "
+                              f"of another instant (give a multiple, or a smaller time_step)")
+
+
 def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
                      autopilot_outputs: bool = False) -> Diagram:
     """The simulated vehicle diagram. Inputs `fc_command` and `odometry` (the onboard estimate,
@@ -76,7 +93,9 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
     none) and the simulation-only `ground_truth` (with the target of `config.target`, if any).
     `autopilot_outputs` also exports the flight controller's `local_position` (its fused
     estimate, never a boundary port: for the simulated PX4 of hw/sim_autopilot.py).
-    Seed it with `Diagram.SetRandomContext`."""
+    Seed it with `Diagram.SetRandomContext`. Its rates must lie on the plant's step
+    (`check_rate_grid`)."""
+    check_rate_grid(config)
     params = config.airframe
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(

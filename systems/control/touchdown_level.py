@@ -28,6 +28,9 @@ class TouchdownLevelParams:
     # leaves 0.4 s, what the attitude loop needs to take out 10-12 deg (from 0.55 m the flown
     # seed still had 9 deg at contact). models/touchdown_level.yaml.
     height: float = bounded(1.0, 0.0, 5.0, "m")
+    # How often the decision is taken [s]: with the onboard stack's command switch (100 Hz),
+    # whose command the vehicle receives. 1.8 m/s (L Table 2) descends 1.8 cm per period.
+    period: float = bounded(0.01, 0.001, 0.1, "s")
 
 
 def level_attitude(command: np.ndarray) -> np.ndarray:
@@ -47,7 +50,10 @@ class TouchdownLevel(LeafSystem):
     Input  `target_estimate` TARGET_ESTIMATE (p_WT [m], `valid`)
     Output `fc_command`      the command, levelled (`level_attitude`) in Landing Phase 2 and
                              Landed while the CoM is under `height` above the target; otherwise
-                             unchanged (direct feed-through)
+                             unchanged (direct feed-through of the command)
+    The decision (`levelling`) is taken every `period` and held: the target estimate is a
+    prediction to the current time, and a decision taken at every read would make the command,
+    and everything the vehicle reads downstream of it, change at every simulator step.
     """
 
     def __init__(self, params: TouchdownLevelParams):
@@ -57,10 +63,14 @@ class TouchdownLevel(LeafSystem):
         self._status = self.DeclareVectorInputPort("mission_status", MISSION_STATUS.size)
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
-        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc)
+        self._level = self.DeclareDiscreteState(1)   # 1: levelling
+        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
+        self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc,
+                                     {self._command.ticket(), self.discrete_state_ticket(
+                                         self._level)})
 
     def levelling(self, context) -> bool:
-        """Whether the command is levelled now."""
+        """Whether the command is to be levelled from now (the decision of a tick)."""
         mode = MISSION_STATUS.get(self._status.Eval(context), "mode")
         if self._height <= 0.0 or mode not in (Mode.LANDING_P2, Mode.LANDED):
             return False
@@ -69,6 +79,10 @@ class TouchdownLevel(LeafSystem):
                   - TARGET_ESTIMATE.get(target, "p_WT")[2])
         return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5) and height <= self._height
 
+    def _update(self, context, discrete_state):
+        discrete_state.set_value(self._level, [float(self.levelling(context))])
+
     def _calc(self, context, output):
         command = self._command.Eval(context)
-        output.SetFromVector(level_attitude(command) if self.levelling(context) else command)
+        levelled = context.get_discrete_state(self._level).get_value()[0] > 0.5
+        output.SetFromVector(level_attitude(command) if levelled else command)

@@ -18,14 +18,14 @@ from alight.systems.params import bounded
 class ImuParams:
     """Defaults: an MPU-9250/ICM-20602-class IMU (Kalibr-style densities), noise inflated for
     the vibration of a multirotor."""
-    period: float = bounded(0.005, 0.0005, 0.1, "s")                        # 200 Hz
+    period: float = bounded(0.004, 0.0005, 0.1, "s")                        # 250 Hz
     accel_noise_density: float = bounded(0.02, 0.0, 1.0, "m/s^2/sqrt(Hz)")
     accel_bias_random_walk: float = bounded(1e-3, 0.0, 1.0, "m/s^3/sqrt(Hz)")
     gyro_noise_density: float = bounded(1.7e-3, 0.0, 1.0, "rad/s/sqrt(Hz)")
     gyro_bias_random_walk: float = bounded(2e-5, 0.0, 1.0, "rad/s^2/sqrt(Hz)")
     accel_bias: list[float] = bounded([0.05, -0.04, 0.03], -2.0, 2.0, "m/s^2")   # initial
     gyro_bias: list[float] = bounded([0.004, -0.003, 0.002], -0.5, 0.5, "rad/s")  # initial
-    buffer_length: int = bounded(100, 2, 100000)  # samples kept on the port (0.5 s at 200 Hz)
+    buffer_length: int = bounded(125, 2, 100000)  # samples kept on the port (0.5 s at 250 Hz)
 
 
 class Imu(LeafSystem):

@@ -34,7 +34,7 @@ class VioStatus(enum.IntEnum):
 
 @dc.dataclass
 class VioParams:
-    period: float = bounded(0.005, 0.0005, 0.1, "s")               # the IMU period
+    period: float = bounded(0.004, 0.0005, 0.1, "s")               # the IMU period
     initial_position: list[float] = bounded([0.0, 0.0, 0.22], -1e4, 1e4, "m")  # p_EB at rest
     init_duration: float = bounded(0.5, 0.05, 10.0, "s")
     rest_accel_std: float = bounded(1.0, 0.01, 10.0, "m/s^2")      # at rest: spread below this,
