@@ -53,7 +53,7 @@ def test_a_touchdown_tilted_into_the_air_tips_over_and_a_level_one_stays_upright
 
 
 def levelled(mode: Mode, height: float, valid: float = 1.0, level_height: float = 1.0):
-    dut = TouchdownLevel(TouchdownLevelParams(height=level_height))
+    dut = TouchdownLevel(TouchdownLevelParams(height=level_height), period=0.01)
     context = dut.CreateDefaultContext()
     q_WD = RollPitchYaw(0.1, -0.2, 0.7).ToQuaternion().wxyz()
     dut.GetInputPort("fc_command").FixValue(context, FC_COMMAND.vector(

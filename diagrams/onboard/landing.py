@@ -69,10 +69,11 @@ def add_mission_logging(builder: DiagramBuilder, loggers: RunLoggers, mission: L
 
 
 def add_touchdown_level(builder: DiagramBuilder, params: TouchdownLevelParams,
-                        mission: LandingMission) -> TouchdownLevel:
-    """The level touchdown `params` on `mission`'s status; its `fc_command`, `state_estimate`
-    and `target_estimate` inputs are the caller's to connect."""
-    level = builder.AddNamedSystem("touchdown_level", TouchdownLevel(params))
+                        mission: LandingMission, period: float) -> TouchdownLevel:
+    """The level touchdown `params` on `mission`'s status, deciding every `period` (the command
+    switch's); its `fc_command`, `state_estimate` and `target_estimate` inputs are the caller's
+    to connect."""
+    level = builder.AddNamedSystem("touchdown_level", TouchdownLevel(params, period))
     builder.Connect(mission.GetOutputPort("mission_status"), level.GetInputPort("mission_status"))
     return level
 
@@ -90,7 +91,7 @@ def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: Landin
     `camera_blackouts`) and the run logging; `command_filter` as in `add_mpc_control` (fault
     injection, before the levelling)."""
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
-    level = add_touchdown_level(builder, touchdown, mission)
+    level = add_touchdown_level(builder, touchdown, mission, fallback.period)
 
     def levelled(builder, command):
         if command_filter is not None:

@@ -98,7 +98,7 @@ def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: Landin
     managed = add_control_manager(builder, config, controllers_config, estimate, goals=goals,
                                   fc_attitude=vehicle.GetOutputPort("fc_attitude"),
                                   target_estimate=ports.target_estimate)
-    level = add_touchdown_level(builder, touchdown, mission)
+    level = add_touchdown_level(builder, touchdown, mission, config.period)
     builder.Connect(estimate, level.GetInputPort("state_estimate"))
     builder.Connect(ports.target_estimate, level.GetInputPort("target_estimate"))
 

@@ -28,9 +28,6 @@ class TouchdownLevelParams:
     # leaves 0.4 s, what the attitude loop needs to take out 10-12 deg (from 0.55 m the flown
     # seed still had 9 deg at contact). models/touchdown_level.yaml.
     height: float = bounded(1.0, 0.0, 5.0, "m")
-    # How often the decision is taken [s]: with the onboard stack's command switch (100 Hz),
-    # whose command the vehicle receives. 1.8 m/s (L Table 2) descends 1.8 cm per period.
-    period: float = bounded(0.01, 0.001, 0.1, "s")
 
 
 def level_attitude(command: np.ndarray) -> np.ndarray:
@@ -51,12 +48,14 @@ class TouchdownLevel(LeafSystem):
     Output `fc_command`      the command, levelled (`level_attitude`) in Landing Phase 2 and
                              Landed while the CoM is under `height` above the target; otherwise
                              unchanged (direct feed-through of the command)
-    The decision (`levelling`) is taken every `period` and held: the target estimate is a
-    prediction to the current time, and a decision taken at every read would make the command,
-    and everything the vehicle reads downstream of it, change at every simulator step.
+    The decision (`levelling`) is taken every `period` (the command switch's, whose command the
+    vehicle receives: at 100 Hz, 1.8 cm of L Table 2's 1.8 m/s descent) and held: the target
+    estimate is a prediction to the current time, and a decision taken at every read would make
+    the command, and everything the vehicle reads downstream of it, change at every simulator
+    step.
     """
 
-    def __init__(self, params: TouchdownLevelParams):
+    def __init__(self, params: TouchdownLevelParams, period: float):
         super().__init__()
         self._height = params.height
         self._command = self.DeclareVectorInputPort("fc_command", FC_COMMAND.size)
@@ -64,7 +63,7 @@ class TouchdownLevel(LeafSystem):
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
         self._level = self.DeclareDiscreteState(1)   # 1: levelling
-        self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc,
                                      {self._command.ticket(), self.discrete_state_ticket(
                                          self._level)})
