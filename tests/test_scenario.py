@@ -1,6 +1,8 @@
 """One typed scenario per run (issue 17): loaded once with its files resolved, overridden from the
 command line by `--set` and the convenience flags, pinned in the run folder, and flown again from
 there stream for stream."""
+import dataclasses as dc
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -10,6 +12,7 @@ from alight.diagrams.cli.options import args_scenario
 from alight.diagrams.running.run_log import RunLog
 from alight.diagrams.scenario import (Scenario, WaypointPlan, dump_scenario, load_scenario,
                                       vehicle_config)
+from alight.diagrams.world.sim_vehicle import check_rate_grid, load_sim_vehicle_config
 from alight.systems.control.scripted_pilot import PilotProfile
 from alight.systems.mission.landing import LandingMissionParams
 from alight.systems.params import ConfigError
@@ -95,3 +98,28 @@ def test_a_run_folder_flies_again_from_its_scenario_yaml_stream_for_stream(tmp_p
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
     assert load_scenario(first / "scenario.yaml").random_seed == 3
     assert "timing" in RunLog(again).streams
+
+
+def test_a_vio_period_other_than_the_imu_period_is_refused_naming_both_keys():
+    """The VIO integrates each IMU sample over its own period: a different IMU rate would count
+    samples twice or leave gaps."""
+    assert load_scenario("field", overrides=["onboard.estimator: vio"]).onboard.vio.period \
+        == load_scenario("field").vehicle.imu.period
+    with pytest.raises(ConfigError, match=r"onboard\.vio\.period.*vehicle\.imu\.period"):
+        load_scenario("field", overrides=["onboard.estimator: vio", "vehicle.imu.period: 0.002"])
+
+
+@pytest.mark.parametrize("key, value", [("imu.period", 0.005), ("flight_controller.period", 0.003),
+                                        ("contact_period", 0.001)])
+def test_a_vehicle_rate_off_the_plant_step_is_refused_naming_the_key(key, value):
+    """Every sampled part of the vehicle reads the plant state of its own instant only when its
+    period is a multiple of the plant's step (2 ms)."""
+    config = load_sim_vehicle_config()
+    check_rate_grid(config)  # the shipped rates lie on the grid
+    if key == "contact_period":
+        config = dc.replace(config, contact_period=value)
+    else:
+        part, field = key.split(".")
+        config = dc.replace(config, **{part: dc.replace(getattr(config, part), **{field: value})})
+    with pytest.raises(ConfigError, match=rf"'{key}' = {value} s is not a multiple"):
+        check_rate_grid(config)
