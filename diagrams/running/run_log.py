@@ -203,12 +203,10 @@ class RunLoggers:
                       self.folder.path, e)
 
     def _append_pending(self) -> None:
-        for name, (sink, _) in self.vector_sinks.items():
-            rows = sink.take()
-            if len(rows):
-                self.folder.append(name, pa.RecordBatch.from_arrays(
-                    [pa.array(rows[:, k]) for k in range(rows.shape[1])],
-                    schema=self.folder.schemas[name]))
+        """The IMU and the compute times first, then the vector streams: the two slow tables
+        (pandas conversions) written last left a wide window in which a reader already saw a
+        flush's vector streams while a kill left them a flush behind (and a compute time measured
+        at the flush instant goes with the next flush: one tick more)."""
         if self.imu_sink is not None:
             frame = self.imu_sink.take()
             if len(frame):
@@ -221,7 +219,12 @@ class RunLoggers:
         if len(frame):
             self.folder.append("timing", pa.Table.from_pandas(
                 frame, schema=TIMING_SCHEMA, preserve_index=False))
-
+        for name, (sink, _) in self.vector_sinks.items():
+            rows = sink.take()
+            if len(rows):
+                self.folder.append(name, pa.RecordBatch.from_arrays(
+                    [pa.array(rows[:, k]) for k in range(rows.shape[1])],
+                    schema=self.folder.schemas[name]))
 
 def add_run_logging(builder, vehicle, command_port=None, period: float = 0.01,
                     flush_period: float = FLUSH_PERIOD) -> RunLoggers:
