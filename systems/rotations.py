@@ -36,12 +36,16 @@ def rotation_matrix(q: np.ndarray) -> np.ndarray:
 
 def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product a * b of (w, x, y, z) quaternions."""
-    w1, x1, y1, z1 = _floats(a)
-    w2, x2, y2, z2 = _floats(b)
-    return np.array([w1 * w2 - (x1 * x2 + y1 * y2 + z1 * z2),
-                     w1 * x2 + w2 * x1 + (y1 * z2 - z1 * y2),
-                     w1 * y2 + w2 * y1 + (z1 * x2 - x1 * z2),
-                     w1 * z2 + w2 * z1 + (x1 * y2 - y1 * x2)])
+    return np.array(product_floats(*_floats(a), *_floats(b)))
+
+
+def product_floats(w1: float, x1: float, y1: float, z1: float,
+                   w2: float, x2: float, y2: float, z2: float) -> list[float]:
+    """`quaternion_product` of two quaternions given as floats, as floats."""
+    return [w1 * w2 - (x1 * x2 + y1 * y2 + z1 * z2),
+            w1 * x2 + w2 * x1 + (y1 * z2 - z1 * y2),
+            w1 * y2 + w2 * y1 + (z1 * x2 - x1 * z2),
+            w1 * z2 + w2 * z1 + (x1 * y2 - y1 * x2)]
 
 
 def conjugate(q: np.ndarray) -> np.ndarray:
@@ -77,6 +81,16 @@ def quaternion_from_rotation_vector(r: np.ndarray) -> np.ndarray:
 def heading(R_WB: np.ndarray) -> float:
     """M(3)-(5): the heading, the azimuth of b1 projected to the horizontal plane."""
     return float(np.arctan2(R_WB[1, 0], R_WB[0, 0]))
+
+
+def quaternion_heading(w: float, x: float, y: float, z: float) -> float:
+    """`heading(rotation_matrix(q))` of q = (w, x, y, z) given as floats, without the matrix: the
+    same operations on its two elements."""
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if norm == 0.0:  # (rotation_matrix's NaN matrix)
+        return float(np.arctan2(math.nan, math.nan))
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    return float(np.arctan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z)))
 
 
 def heading_quaternion(eta: float) -> np.ndarray:

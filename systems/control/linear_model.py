@@ -12,12 +12,13 @@ Euler angles (ZYX: heading = yaw for this convention) appear only here, as the p
 them; the rest of alight uses the heading of M(3)-(5).
 """
 import dataclasses as dc
+import math
 
 import numpy as np
 from scipy.linalg import expm
 
 from alight.systems.params import bounded
-from alight.systems.rotations import rotation_matrix
+from alight.systems.rotations import _floats
 
 GRAVITY = 9.81
 NUM_STATES = 10
@@ -74,18 +75,33 @@ def discretize(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.
 
 def euler_pitch_roll_yaw(q_WB: np.ndarray) -> tuple[float, float, float]:
     """ZYX Euler angles (pitch theta, roll phi, yaw psi) of q_WB; for ZYX, yaw equals the heading."""
-    R = rotation_matrix(q_WB)
-    theta = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
-    phi = float(np.arctan2(R[2, 1], R[2, 2]))
-    psi = float(np.arctan2(R[1, 0], R[0, 0]))
+    return euler_angles(*_floats(q_WB))
+
+
+def euler_angles(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """`euler_pitch_roll_yaw` of q_WB = (w, x, y, z) given as floats: the operations of
+    `rotation_matrix` on the five elements it uses, without the matrix (np.clip of a scalar as
+    min/max, which give the same value, NaN included)."""
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if norm == 0.0:  # (rotation_matrix's NaN matrix)
+        R00 = R10 = R20 = R21 = R22 = math.nan
+    else:
+        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        R00, R10 = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z)
+        R20, R21, R22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    theta = float(np.arcsin(min(max(-R20, -1.0), 1.0)))
+    phi = float(np.arctan2(R21, R22))
+    psi = float(np.arctan2(R10, R00))
     return theta, phi, psi
 
 
 def euler_rates(phi: float, theta: float, w_B: np.ndarray) -> tuple[float, float]:
     """L(17): roll and pitch rates from body rates."""
-    phi_dot = w_B[0] + np.sin(phi) * np.tan(theta) * w_B[1] + np.cos(phi) * np.tan(theta) * w_B[2]
-    theta_dot = np.cos(phi) * w_B[1] - np.sin(phi) * w_B[2]
-    return float(phi_dot), float(theta_dot)
+    sin_phi, cos_phi, tan_theta = float(np.sin(phi)), float(np.cos(phi)), float(np.tan(theta))
+    w_x, w_y, w_z = _floats(w_B)
+    phi_dot = w_x + sin_phi * tan_theta * w_y + cos_phi * tan_theta * w_z
+    theta_dot = cos_phi * w_y - sin_phi * w_z
+    return phi_dot, theta_dot
 
 
 def rotate_to_navigation(vector_W: np.ndarray, yaw: float) -> np.ndarray:
@@ -93,6 +109,13 @@ def rotate_to_navigation(vector_W: np.ndarray, yaw: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([c * vector_W[0] + s * vector_W[1], -s * vector_W[0] + c * vector_W[1],
                      vector_W[2]])
+
+
+def to_navigation(v_W: list[float], cos_yaw: float, sin_yaw: float) -> list[float]:
+    """`rotate_to_navigation` of a vector given as 3 floats, with np.cos(yaw) and np.sin(yaw)
+    (computed once per yaw by the caller) as floats: the same operations."""
+    x, y, z = v_W
+    return [cos_yaw * x + sin_yaw * y, -sin_yaw * x + cos_yaw * y, z]
 
 
 def model_state(p_WB, v_WB, q_WB, w_B, p_ref=np.zeros(3)) -> tuple[np.ndarray, float]:

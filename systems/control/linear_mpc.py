@@ -40,18 +40,28 @@ from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND,
 from alight.systems.control.controller import Controller
 from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
                                                  LinearModelParams, continuous_model, discretize,
-                                                 model_state, rotate_to_navigation)
+                                                 euler_angles, euler_rates, to_navigation)
 from alight.systems.control.persistent_daqp import PersistentDaqp
 from alight.systems.control.persistent_osqp import PersistentOsqp, QpResult
 from alight.systems.control.program_qp import variable_index
 from alight.systems.params import bounded, choice
-from alight.systems.rotations import heading_quaternion, quaternion_product, rotation_matrix
-from alight.systems.rotations import heading as heading_of_matrix
+from alight.systems.rotations import product_floats, quaternion_heading
 from alight.systems.thrust_curve import ThrustCurve
 
-
-def heading_of(q: np.ndarray) -> float:
-    return heading_of_matrix(rotation_matrix(q))
+# The fields the tick reads, as indices into the vectors' `tolist()`
+_E_STAMP, _E_P, _E_V, _E_HEADING = (STATE_ESTIMATE.slice(field) for field in
+                                    ("stamp", "p_EB", "v_EB", "heading"))
+_E_STAMP, _E_HEADING = _E_STAMP.start, _E_HEADING.start
+_R_STAMP, _R_P, _R_V, _R_HEADING = (REFERENCE.slice(field) for field in
+                                    ("stamp", "p", "v", "heading"))
+_R_STAMP, _R_HEADING = _R_STAMP.start, _R_HEADING.start
+_A_Q, _A_W = FC_ATTITUDE.slice("q_WB"), FC_ATTITUDE.slice("w_B")
+_ATTITUDE_THRUST = float(CommandMode.ATTITUDE_THRUST)
+_ZERO = np.zeros(1)
+if FC_COMMAND.names() != ["stamp", "mode", "q_WD_0", "q_WD_1", "q_WD_2", "q_WD_3", "w_D_0",
+                          "w_D_1", "w_D_2", "thrust", "arm"] \
+        or CONTROLLER_STATUS.names() != ["valid", "reason", "solver_status"]:
+    raise ImportError("linear_mpc writes FC_COMMAND and CONTROLLER_STATUS out by field order")
 
 
 @dc.dataclass
@@ -105,6 +115,9 @@ class MpcReason(enum.IntEnum):
     BAD_ESTIMATE = 2
     FALLBACK = 4        # solver failed: the previous solution's next input was used once
     SOLVER_FAILED = 5   # failed again: the command is a safe level hover, not to be flown
+
+
+_OK = float(MpcReason.OK)
 
 
 def prediction_matrices(Ad: np.ndarray, Bd: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
@@ -249,12 +262,15 @@ class LinearMpcQp:
         return result.x[self._s_index]
 
 
-def carrot(p: np.ndarray, p_ref: np.ndarray, max_distance: float) -> np.ndarray:
+def carrot(p: list[float], p_ref: list[float], max_distance: float) -> list[float]:
     """`p_ref`, moved toward `p` along the line between them until it is at most
-    `max_distance` from `p`."""
-    error = np.asarray(p_ref, float) - p
+    `max_distance` from `p` (3 floats each)."""
+    error = np.array([r - q for r, q in zip(p_ref, p)])
     distance = math.sqrt(error @ error)  # (np.linalg.norm's own formula, without its checks)
-    return p_ref if distance <= max_distance else p + error * (max_distance / distance)
+    if distance <= max_distance:
+        return p_ref
+    scale = max_distance / distance
+    return [q + e * scale for q, e in zip(p, error.tolist())]
 
 
 class LinearMpc(Controller):
@@ -275,6 +291,7 @@ class LinearMpc(Controller):
         N = params.horizon_steps
         # s, of the predicted states (a column: times a velocity, the positions per step)
         self._step_times = (np.arange(1, N + 1) * params.period)[:, None]
+        self._s_y = np.zeros((N, NUM_STATES))  # `_references`' s_y, rewritten every tick
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._solution = self.DeclareDiscreteState(np.full(N * NUM_INPUTS, np.nan))
         self._failures = self.DeclareDiscreteState(1)
@@ -297,23 +314,40 @@ class LinearMpc(Controller):
         gravity feedforward and tilt compensation through the thrust curve M(32)."""
         pitch, roll, thrust_acceleration = u.tolist()
         force = self._model.mass * (GRAVITY + thrust_acceleration) / (np.cos(pitch) * np.cos(roll))
-        return FC_COMMAND.pack(stamp=stamp, mode=CommandMode.ATTITUDE_THRUST,
-                               q_WD=RollPitchYaw(roll, pitch, heading).ToQuaternion().wxyz(),
-                               w_D=np.zeros(3), thrust=float(self._curve.thrust(force)), arm=1.0)
+        # (FC_COMMAND.pack's vector, written out: stamp, mode, q_WD, w_D = 0, thrust, arm)
+        return np.array([stamp, _ATTITUDE_THRUST,
+                         *RollPitchYaw(roll, pitch, heading).ToQuaternion().wxyz().tolist(),
+                         0.0, 0.0, 0.0, self._thrust(float(force)), 1.0])
+
+    def _thrust(self, force: float) -> float:
+        """float(self._curve.thrust(force)): on floats where its value is in (0, 1) (math.sqrt
+        is the correctly rounded square root, as np.sqrt; no clipping applies), else the curve's
+        own (NumPy) clipping, whose signed zeros and NaN this leaves alone."""
+        if force > 0.0:
+            thrust = self._curve.a_t * math.sqrt(force) + self._curve.b_t
+            if 0.0 < thrust < 1.0:
+                return thrust
+        return float(self._curve.thrust(force))
 
     def references(self, reference: np.ndarray, yaw: float,
                    d_N: np.ndarray = np.zeros(3)) -> tuple[np.ndarray, np.ndarray]:
         """s_y (N*n) and s_u (N*m) in N, relative to the reference position at t = 0: the inputs
         that hold the reference velocity against the drag of L(11) and the disturbance d_N."""
-        N, m = self._p.horizon_steps, self._model
-        v_N = rotate_to_navigation(REFERENCE.get(reference, "v"), yaw)
-        (v_x, v_y, v_z), (d_x, d_y, d_z) = v_N.tolist(), np.asarray(d_N, float).tolist()
+        v_N = to_navigation(REFERENCE.get(reference, "v").tolist(), float(np.cos(yaw)),
+                            float(np.sin(yaw)))
+        return self._references(v_N, np.asarray(d_N, float).tolist(), np.zeros(self._s_y.shape))
+
+    def _references(self, v_N: list[float], d_N: list[float],
+                    s_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`references` of the reference velocity and d_N in N (floats), s_y written into `s_y`
+        ((N, n), its last two columns zero)."""
+        m = self._model
+        (v_x, v_y, v_z), (d_x, d_y, d_z) = v_N, d_N
         hold = [(m.c_x * v_x - d_x) / GRAVITY, (d_y - m.c_y * v_y) / GRAVITY, m.c_z * v_z - d_z]
-        s_y = np.zeros((N, NUM_STATES))
-        s_y[:, 0:3] = self._step_times * v_N
+        np.multiply(self._step_times, v_N, out=s_y[:, 0:3])
         s_y[:, 3:6] = v_N
         s_y[:, 6:8] = hold[:2]
-        return s_y.ravel(), np.array(hold * N)  # (the same inputs at every step)
+        return s_y.ravel(), np.array(hold * self._p.horizon_steps)  # (the same at every step)
 
     def _update_inactive(self, context, discrete_state):
         """Follows the issued command; no failures, no prediction to compare with."""
@@ -323,63 +357,75 @@ class LinearMpc(Controller):
         self._forget_prediction(context, discrete_state)
 
     def _update_active(self, context, discrete_state, estimate) -> None:
+        # On the vectors' elements as floats, read once by index: every operation is the one of
+        # the NumPy vector code it replaces (element-wise), in the same order; dot products,
+        # matrix products and trigonometric functions stay NumPy's.
         now = context.get_time()
         reference = self._reference.Eval(context)
-        heading = float(REFERENCE.get(reference, "heading"))
+        r = reference.tolist()
+        heading = r[_R_HEADING]
         if estimate is None or not np.isfinite(reference).all():
             self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0)
             return
+        e = estimate.tolist()
         # Position and velocity from odometry; attitude and rates from the flight controller's
         # estimate (fresh, 250 Hz), rotated into the odometry frame by the heading difference.
-        attitude = self._attitude.Eval(context)
-        q_WB = FC_ATTITUDE.get(attitude, "q_WB")
-        offset = STATE_ESTIMATE.get(estimate, "heading") - heading_of(q_WB)
-        q_EB = quaternion_product(heading_quaternion(offset), q_WB)
-        v_EB = STATE_ESTIMATE.get(estimate, "v_EB")
-        p_EB = STATE_ESTIMATE.get(estimate, "p_EB") \
-            + v_EB * self._age(STATE_ESTIMATE.get(estimate, "stamp"), now)
-        p_ref = REFERENCE.get(reference, "p") \
-            + REFERENCE.get(reference, "v") * self._age(REFERENCE.get(reference, "stamp"), now)
-        x0, yaw = model_state(p_EB, v_EB, q_EB, FC_ATTITUDE.get(attitude, "w_B"),
-                              carrot(p_EB, p_ref, self._p.max_position_error))
+        attitude = self._attitude.Eval(context).tolist()
+        q_WB = attitude[_A_Q]
+        half = (e[_E_HEADING] - quaternion_heading(*q_WB)) / 2  # (the heading offset's half)
+        q_EB = product_floats(float(np.cos(half)), 0.0, 0.0, float(np.sin(half)), *q_WB)
+        v_EB = e[_E_V]
+        age = self._age(e[_E_STAMP], now)
+        p_EB = [p + v * age for p, v in zip(e[_E_P], v_EB)]
+        age = self._age(r[_R_STAMP], now)
+        p_ref = carrot(p_EB, [p + v * age for p, v in zip(r[_R_P], r[_R_V])],
+                       self._p.max_position_error)
+        # model_state(p_EB, v_EB, q_EB, w_B, p_ref)
+        theta, phi, yaw = euler_angles(*q_EB)
+        phi_dot, theta_dot = euler_rates(phi, theta, attitude[_A_W])
+        cos_yaw, sin_yaw = float(np.cos(yaw)), float(np.sin(yaw))
+        x0 = np.array(to_navigation([p - q for p, q in zip(p_EB, p_ref)], cos_yaw, sin_yaw)
+                      + to_navigation(v_EB, cos_yaw, sin_yaw) + [theta, phi, theta_dot, phi_dot])
         previous = context.get_discrete_state(self._solution).get_value()[:NUM_INPUTS]
         d_W = self._estimate_disturbance(context, v_EB)
-        d_N = rotate_to_navigation(d_W, yaw)
-        self._qp.update(x0, *self.references(reference, yaw, d_N),
-                        previous if np.isfinite(previous).all() else None, d_N)
+        d_N = to_navigation(d_W, cos_yaw, sin_yaw)
+        d_N_vector = np.array(d_N)
+        v_N = to_navigation(r[_R_V], cos_yaw, sin_yaw)
+        self._qp.update(x0, *self._references(v_N, d_N, self._s_y),
+                        previous if np.isfinite(previous).all() else None, d_N_vector)
         result = self._qp.solve()
         solver_status = result.status
         if not result.ok:
             self._fail(context, discrete_state, now, heading, MpcReason.FALLBACK, solver_status)
             return
-        u = self._qp.inputs(result)
-        v_next_N = (self._qp.Ad @ x0 + self._qp.Bd @ u[0] + self._qp.Ed @ d_N)[3:6]
-        discrete_state.set_value(self._disturbance, np.concatenate(
-            [d_W, rotate_to_navigation(v_next_N, -yaw)]))
-        discrete_state.set_value(self._command, self._to_command(u[0], now, heading))
-        discrete_state.set_value(self._solution, u.ravel())
-        discrete_state.set_value(self._failures, [0.0])
-        discrete_state.set_value(self._status, CONTROLLER_STATUS.pack(
-            valid=1.0, reason=MpcReason.OK, solver_status=solver_status))
+        solution = result.x[self._qp._u_index]
+        u_0 = solution[:NUM_INPUTS]
+        v_next_N = (self._qp.Ad @ x0 + self._qp.Bd @ u_0 + self._qp.Ed @ d_N_vector)[3:6]
+        discrete_state.set_value(self._disturbance, d_W + to_navigation(
+            v_next_N.tolist(), float(np.cos(-yaw)), float(np.sin(-yaw))))
+        discrete_state.set_value(self._command, self._to_command(u_0, now, heading))
+        discrete_state.set_value(self._solution, solution)
+        discrete_state.set_value(self._failures, _ZERO)
+        discrete_state.set_value(self._status, np.array([1.0, _OK, float(solver_status)]))
 
     def _age(self, stamp, now: float) -> float:
         """How long before `now` `stamp` was, clipped to [0, max_prediction]."""
         return min(max(now - float(stamp), 0.0), self._p.max_prediction)
 
-    def _estimate_disturbance(self, context, v_W: np.ndarray) -> np.ndarray:
+    def _estimate_disturbance(self, context, v_W: list[float]) -> list[float]:
         """d_W moved by `disturbance_gain` of the velocity the model failed to predict over the
         last tick, bounded to `max_disturbance` (no prediction yet, or gain 0: unchanged)."""
         stored = context.get_discrete_state(self._disturbance).get_value().tolist()
         d_W, v_predicted = stored[:3], stored[3:]
         gain, dt = self._p.disturbance_gain, self._p.period
         if gain <= 0 or not all(map(math.isfinite, v_predicted)):
-            return np.array(d_W)
+            return d_W
         # (on floats: the same operations as on 3-vectors, without NumPy's per-call overhead)
-        error = [v - v_hat for v, v_hat in zip(v_W.tolist(), v_predicted)]
+        error = [v - v_hat for v, v_hat in zip(v_W, v_predicted)]
         error[2] = 0.0
         d_W = np.array([d + gain * e / dt for d, e in zip(d_W, error)])
         size = math.sqrt(d_W @ d_W)  # (np.linalg.norm's own formula, without its checks)
-        return d_W * min(1.0, self._p.max_disturbance / size) if size > 0 else d_W
+        return (d_W * min(1.0, self._p.max_disturbance / size) if size > 0 else d_W).tolist()
 
     def _forget_prediction(self, context, discrete_state):
         """Keeps d_W but drops the velocity prediction that no applied command produced."""
