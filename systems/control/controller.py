@@ -13,15 +13,19 @@ Also here: what the manager reads of every controller (`ControllerReason`, `stat
 `command_is_usable`, `controller_failed`) and the safe level command (`level_command`).
 """
 import enum
+import time
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
-                                     CommandMode, estimate_is_valid)
+                                     CommandMode)
 from alight.systems.estimation.frames import frame_switch
 from alight.systems.rotations import heading_quaternion
 from alight.systems.timing import ComputeTimer
+
+_VALID = STATE_ESTIMATE.slice("valid").start
+_FRAME_COUNTER = STATE_ESTIMATE.slice("frame_counter").start
 
 
 class ControllerReason(enum.IntEnum):
@@ -124,19 +128,28 @@ class Controller(LeafSystem):
     # --- the tick -----------------------------------------------------------------------------
 
     def _tick(self, context, discrete_state):
-        was_active, frame_counter = context.get_discrete_state(self._role).get_value()
+        role = context.get_discrete_state(self._role).get_value()
+        was_active, frame_counter = role.tolist()
         if self._active.Eval(context)[0] < 0.5:
             discrete_state.set_value(self._role, [0.0, frame_counter])
             return self._update_inactive(context, discrete_state)
         estimate = self._estimate.Eval(context)
-        estimate = estimate if estimate_is_valid(estimate) else None
-        with self.compute_timer.measure(context.get_time()):
+        # (estimate_is_valid, inline)
+        estimate = estimate if estimate[_VALID] > 0.5 and np.isfinite(estimate).all() else None
+        # (compute_timer.measure, inline: the same clock and record, without the generator)
+        stamp, start = context.get_time(), time.perf_counter()
+        try:
             if was_active < 0.5:
                 self._activate(context, discrete_state, self._last.Eval(context), estimate)
                 frame_counter = np.nan
-            elif estimate is not None and (switch := frame_switch(estimate, frame_counter)):
+            elif estimate is not None and estimate[_FRAME_COUNTER] != frame_counter \
+                    and (switch := frame_switch(estimate, frame_counter)):
+                # (frame_switch is None in the same frame, tested first here)
                 self._switch_frame(context, discrete_state, *switch)
             if estimate is not None:
-                frame_counter = STATE_ESTIMATE.get(estimate, "frame_counter")
-            discrete_state.set_value(self._role, [1.0, frame_counter])
+                frame_counter = float(estimate[_FRAME_COUNTER])
+            if was_active != 1.0 or frame_counter != role[1]:  # (else the role is unchanged)
+                discrete_state.set_value(self._role, [1.0, frame_counter])
             self._update_active(context, discrete_state, estimate)
+        finally:
+            self.compute_timer.record(stamp, "tick", time.perf_counter() - start)

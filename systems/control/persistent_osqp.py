@@ -58,11 +58,12 @@ class PersistentOsqp:
         return np.maximum(lower, -INFINITY, out=lower), np.minimum(upper, INFINITY, out=upper)
 
     def _data(self) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-        """q, l and u re-read from the changing bindings (None: none of them holds it)."""
+        """q, l and u re-read from the changing bindings (None: none of them holds it), the
+        bounds clipped as read (the other rows were clipped once, at construction)."""
         costs, bounded = self._changing
-        self.qp.refresh(costs, bounded)
-        lower, upper = self._clip(self.qp.lower, self.qp.upper) if bounded else (None, None)
-        return self.qp.linear if costs else None, lower, upper
+        qp = self.qp
+        qp.refresh(costs, bounded, INFINITY)
+        return (qp.linear if costs else None,) + ((qp.lower, qp.upper) if bounded else (None, None))
 
     def solve(self) -> QpResult:
         """Solves with the program's current linear cost terms and bounds, warm-started."""

@@ -79,18 +79,30 @@ class ProgramQp:
             + [(binding.evaluator(), index, binding.evaluator().a) for binding, index in linear]
         self.box_variable = np.concatenate(box_variable).astype(int) if rows \
             else np.zeros(0, int)
-        # `refresh`'s buffers: each cost's linear term as last read, their sum q, and l, u
+        # `refresh`'s buffers: each cost's linear term as last read, their sum q, and l, u; per
+        # constrained block its evaluator and its rows of l and u (views); (k, the sum of the
+        # terms of the costs before k), k the first cost refreshed (the terms before it are
+        # unchanged until a refresh re-reads one of them)
         self._terms = [read() for _, _, read in self._costs]
         self.linear = self._sum(self._terms, np.zeros(n))
         self.lower, self.upper = self.bounds()
+        self._bound_rows = [(evaluator, self.lower[rows], self.upper[rows])
+                            for evaluator, rows in self._bounded]
+        self._prefix: tuple[int, np.ndarray] | None = None
 
     def _index(self, binding) -> slice | np.ndarray:
         return variable_index(self.prog, binding.variables())
 
-    def _sum(self, terms, out: np.ndarray) -> np.ndarray:
-        """The costs' linear terms summed into `out` (zeroed first), in the costs' order."""
-        out.fill(0.0)
-        for (_, index, _), term in zip(self._costs, terms):
+    def _sum(self, terms, out: np.ndarray, start: int = 0) -> np.ndarray:
+        """The costs' linear terms summed into `out` (zeroed first), in the costs' order; from
+        cost `start` on, on the kept sum of the terms before it (`_terms`, unchanged since)."""
+        if start == 0:
+            out.fill(0.0)
+        else:
+            if self._prefix is None or self._prefix[0] != start:
+                self._prefix = (start, self._sum(self._terms[:start], np.zeros(self.num_vars)))
+            np.copyto(out, self._prefix[1])
+        for (_, index, _), term in zip(self._costs[start:], terms[start:]):
             out[index] += term
         return out
 
@@ -125,12 +137,21 @@ class ProgramQp:
             raise ValueError("not all of the bindings are costs or constraints of the program")
         return costs, bounded
 
-    def refresh(self, costs: list[int], bounded: list[int]) -> None:
+    def refresh(self, costs: list[int], bounded: list[int], infinity: float | None = None) -> None:
         """Re-reads the linear terms of the costs and the bounds of the constraints at these
-        `positions` into `linear` (q, summed again) and `lower`, `upper` (their rows); the other
-        bindings keep the data last read. The buffers are overwritten by the next refresh."""
+        `positions` (ascending) into `linear` (q, summed again) and `lower`, `upper` (their rows,
+        within +-`infinity` when given); the other bindings keep the data last read. The buffers
+        are overwritten by the next refresh."""
         if costs:
+            if self._prefix is not None and costs[0] < self._prefix[0]:
+                self._prefix = None  # (a term it summed is re-read)
             for k in costs:
                 self._terms[k] = self._costs[k][2]()
-            self._sum(self._terms, self.linear)
-        self._read_bounds(bounded, self.lower, self.upper)
+            self._sum(self._terms, self.linear, costs[0])
+        for k in bounded:
+            evaluator, lower, upper = self._bound_rows[k]
+            if infinity is None:
+                lower[:], upper[:] = evaluator.lower_bound(), evaluator.upper_bound()
+            else:
+                np.maximum(evaluator.lower_bound(), -infinity, out=lower)
+                np.minimum(evaluator.upper_bound(), infinity, out=upper)
