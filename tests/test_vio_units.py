@@ -9,7 +9,7 @@ from pydrake.systems.analysis import Simulator
 from alight.systems.boundary import STATE_ESTIMATE, CameraFrame, ImuSamples
 from alight.systems.sensors.rgbd_camera import (GeometricRgbdCamera, RgbdCameraParams,
                                                 depth_noise_std, occluded, ray_depth)
-from alight.systems.sensors.rgbd_camera_map import LandmarkMap
+from alight.systems.sensors.rgbd_camera_map import LandmarkMap, LandmarkMapParams
 from alight.systems.vio.estimator import VioParams, VioStatus
 from alight.systems.vio.frontend import FrontendParams, Keypoints, KltTracker, virtual_stereo
 from alight.systems.vio.odometry import VIO_ODOMETRY, VisualInertialOdometry
@@ -191,6 +191,37 @@ def test_keyframes_add_at_most_max_landmarks_known_first_and_the_window_forgets_
 
 def _camera_pose(p, yaw=0.0):
     return RigidTransform(RollPitchYaw(0, 0, yaw), p) @ RgbdCameraParams().X_BC()
+
+
+def test_a_long_map_is_seen_as_projecting_all_of_it_would_see_it():
+    """The camera projects only the map cells that reach into its view: on a map 640 m long it
+    observes the same landmarks at the same pixels as the whole map projected (the brute force,
+    written out here), from poses all along it, in every direction and height."""
+    params = RgbdCameraParams(landmarks=LandmarkMapParams(extent=[-40.0, -40.0, 40.0, 600.0],
+                                                          boxes=280))
+    camera = GeometricRgbdCamera(params, 0)
+    m, lens = camera.landmarks, params.lens()
+    rng = np.random.default_rng(3)
+    seen = 0
+    for _ in range(40):
+        X_WC = RigidTransform(RollPitchYaw(*rng.uniform(-0.4, 0.4, 2), rng.uniform(-3.2, 3.2)),
+                              [rng.uniform(-45, 45), rng.uniform(-50, 610),
+                               rng.uniform(0.5, 12)]) @ params.X_BC()
+        p_CL = X_WC.inverse().multiply(m.p_WL.T).T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = lens.project(p_CL)
+        c = X_WC.translation()
+        candidates = np.flatnonzero((p_CL[:, 2] > 0.1) & (p_CL[:, 2] < params.max_range)
+                                    & lens.in_image(uv, params.border_margin)
+                                    & (np.einsum("ij,ij->i", m.n_WL, c - m.p_WL) > 0))
+        hidden = occluded(c, m.p_WL[candidates], m.boxes[:, :5], m.box[candidates])
+        expected = candidates[~hidden].tolist()
+        visible, uv_seen, z_seen = camera.visible(X_WC)
+        assert visible == expected
+        np.testing.assert_allclose(uv_seen[visible], uv[visible], atol=1e-9)
+        np.testing.assert_allclose(z_seen[visible], p_CL[visible, 2], atol=1e-9)
+        seen += len(visible)
+    assert seen > 40 * 100  # the poses do see the map
 
 
 def test_a_landmark_behind_a_box_or_on_a_back_face_is_not_observed():

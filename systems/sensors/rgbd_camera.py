@@ -40,8 +40,8 @@ from alight.systems.boundary import CameraFrame
 from alight.systems.params import bounded, choice
 from alight.systems.sensors.down_camera import TimedCamera
 from alight.systems.sensors.down_camera_lens import Lens
-from alight.systems.sensors.rgbd_camera_map import (LandmarkMap, LandmarkMapParams,
-                                                    make_landmark_map)
+from alight.systems.sensors.rgbd_camera_map import (LandmarkGrid, LandmarkMap,
+                                                    LandmarkMapParams, make_landmark_map)
 
 
 @dc.dataclass
@@ -164,6 +164,9 @@ class GeometricRgbdCamera(TimedCamera):
         self._p_WL_h = np.vstack([self.landmarks.p_WL.T, np.ones(len(self.landmarks.p_WL))])
         self._boxes = self.landmarks.boxes[:, :5]
         self._focal, self._center = self._lens.K[[0, 1], [0, 1]], self._lens.K[:2, 2]
+        # A map along a road holds 10^5 landmarks: each frame projects only those of the cells
+        # that reach into the view frustum (`_boxes_in_view`).
+        self._grid = LandmarkGrid(self.landmarks.p_WL, cell=params.max_range / 4)
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(
             [RigidTransform()]))
         self._seed = self.DeclareVectorInputPort("noise_seed", 1)
@@ -251,10 +254,10 @@ class GeometricRgbdCamera(TimedCamera):
         p_WL_h = self._p_WL_h if indices is None else self._p_WL_h[:, indices]
         return (X_WC.inverse().GetAsMatrix34() @ p_WL_h).T
 
-    def _boxes_in_view(self, X_WC: RigidTransform) -> np.ndarray:
-        """Rows of the boxes not wholly outside one plane of the view frustum (behind the camera,
-        or beyond one image edge), in increasing order."""
-        b = self._boxes
+    def _boxes_in_view(self, X_WC: RigidTransform, boxes: np.ndarray = None) -> np.ndarray:
+        """Rows of the boxes (default: the map's) not wholly outside one plane of the view frustum
+        (behind the camera, beyond `max_range`, or beyond one image edge), in increasing order."""
+        b = self._boxes if boxes is None else boxes
         if not len(b):
             return np.zeros(0, int)
         corners = np.stack(np.meshgrid([0, 2], [1, 3], [0, 1], indexing="ij"), -1).reshape(-1, 3)
@@ -265,7 +268,8 @@ class GeometricRgbdCamera(TimedCamera):
         x, y, z = p_C[..., 0], p_C[..., 1], p_C[..., 2]
         (fx, fy), (cx, cy) = self._focal, self._center
         w, h = self._lens.width, self._lens.height
-        outside = ((z <= 0).all(1) | (fx * x + cx * z < 0).all(1)
+        outside = ((z <= 0).all(1) | (z >= self._params.max_range).all(1)
+                   | (fx * x + cx * z < 0).all(1)
                    | (fx * x - (w - cx) * z > 0).all(1)
                    | (fy * y + cy * z < 0).all(1) | (fy * y - (h - cy) * z > 0).all(1))
         return np.flatnonzero(~outside)
@@ -273,16 +277,20 @@ class GeometricRgbdCamera(TimedCamera):
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
         """Indices of the landmarks a detector would find (in front, within range, inside the
         image minus the border, on a face turned toward the camera, not hidden by a box), the
-        noise-free pixels (meaningless behind the camera) and ranges (z in C) of all landmarks."""
+        noise-free pixels (meaningless behind the camera, NaN out of range) and ranges (z in C,
+        inf out of range) of all landmarks."""
         p = self._params
-        p_CL = self._points_C(X_WC)
-        z = p_CL[:, 2]
-        ahead = (z > 0.1) & (z < p.max_range)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = p_CL[:, :2] / z[:, None] * self._focal + self._center
-        candidates = np.flatnonzero(ahead & self._lens.in_image(uv, p.border_margin))
-        m = self.landmarks
         c = X_WC.translation()
+        near = self._grid.members(self._boxes_in_view(X_WC, self._grid.boxes))
+        p_CL = self._points_C(X_WC, near)
+        z = np.full(len(self._p_WL_h[0]), np.inf)
+        z[near] = p_CL[:, 2]
+        uv = np.full((len(z), 2), np.nan)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv[near] = p_CL[:, :2] / z[near, None] * self._focal + self._center
+        ahead = (z[near] > 0.1) & (z[near] < p.max_range)
+        candidates = np.sort(near[ahead & self._lens.in_image(uv[near], p.border_margin)])
+        m = self.landmarks
         p_WL = m.p_WL[candidates]
         front = np.einsum("ij,ij->i", m.n_WL[candidates], c - p_WL) > 0
         candidates, p_WL = candidates[front], p_WL[front]

@@ -3,6 +3,10 @@
 p_WL in the world. Textured ground (random points on z = 0) plus box-shaped objects standing on it
 (points on their four sides and top), all drawn from one seed so that a scenario is reproducible.
 
+The map may stretch hundreds of metres along a road (a chase at 5-10 m/s); `LandmarkGrid` indexes
+the landmarks by square cells on the ground so that a camera projects only the landmarks within
+its range instead of the whole map every frame.
+
 Each landmark carries the outward normal of the surface it lies on (the ground's is +z) and the
 index of its box (-1: the ground), so that the camera can tell a back face and an occluded point
 (`rgbd_camera.GeometricRgbdCamera`, issue 20).
@@ -78,3 +82,27 @@ def _box_surface_points(rng, centre, size, density) -> tuple[np.ndarray, np.ndar
     faces.append(np.column_stack([top, np.full(n, sz)]))
     normals.append(np.tile([0.0, 0.0, 1.0], (n, 1)))
     return np.vstack(faces), np.vstack(normals)
+
+
+class LandmarkGrid:
+    """`LandmarkGrid(p_WL, cell)`: the landmarks sorted into square cells on the ground. `boxes`
+    (K, 5) are the non-empty cells as boxes standing on the ground (x0, y0, x1, y1, height: the
+    highest landmark in the cell), `members(rows)` the indices of the landmarks of those cells
+    (in no particular order)."""
+
+    def __init__(self, p_WL: np.ndarray, cell: float):
+        p_WL = np.asarray(p_WL, float).reshape(-1, 3)
+        origin = p_WL[:, :2].min(axis=0) if len(p_WL) else np.zeros(2)
+        ij = np.floor((p_WL[:, :2] - origin) / cell).astype(np.int64)
+        key = ij[:, 0] * (ij[:, 1].max(initial=0) + 1) + ij[:, 1]
+        self._order = np.argsort(key, kind="stable")
+        keys, first = np.unique(key[self._order], return_index=True)
+        # the landmarks of non-empty cell r are self._order[self._start[r]:self._start[r + 1]]
+        self._start = np.append(first, len(key))
+        corner = origin + ij[self._order[first]] * cell
+        height = np.maximum.reduceat(p_WL[self._order, 2], first) if len(first) else []
+        self.boxes = np.column_stack([corner, corner + cell, height]).reshape(-1, 5)
+
+    def members(self, rows: np.ndarray) -> np.ndarray:
+        slices = [self._order[self._start[r]:self._start[r + 1]] for r in rows]
+        return np.concatenate(slices) if slices else np.zeros(0, np.int64)

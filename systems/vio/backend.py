@@ -16,7 +16,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, L, V, X
 
-from alight.systems.params import bounded
+from alight.systems.params import bounded, choice
 
 
 @dc.dataclass
@@ -37,6 +37,13 @@ class BackendParams:
     max_speed: float = bounded(40.0, 1.0, 1000.0, "m/s")          # beyond: the solution diverged
     # landmarks one keyframe observes in the window, at most (the bound on the back end's work)
     max_landmarks: int = bounded(110, 4, 10000)
+    # iSAM2's linear solver. Cholesky (GTSAM's default) declared the window's system
+    # indeterminate when keyframes came every camera frame at 5.7 m/s (the gyro bias link of a
+    # 33 ms IMU factor carries an information of about 1e11, which we take to be the cause),
+    # each failure a window restart: the front end's min_keyframe_gap keeps keyframes apart
+    # instead. QR factorizes the same system without squaring it and did not fail, at 2.7x the
+    # back end's time (bench/vio.py).
+    factorization: str = choice("CHOLESKY", "QR")
 
 
 @dc.dataclass
@@ -112,7 +119,9 @@ class SlidingWindow:
         """A new window whose first keyframe at `t` has priors on pose, velocity and bias (the
         defaults: the initialization from rest; larger ones when restarting after a loss)."""
         p = self._p
-        self._smoother = gtsam.IncrementalFixedLagSmoother(p.lag, gtsam.ISAM2Params())
+        isam = gtsam.ISAM2Params()
+        isam.setFactorization(p.factorization)
+        self._smoother = gtsam.IncrementalFixedLagSmoother(p.lag, isam)
         self._landmarks = {}
         self._k += 1
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
