@@ -97,6 +97,7 @@ class Controller(LeafSystem):
         self._status = self.DeclareDiscreteState(status_vector(ControllerReason.INACTIVE))
         # [1 while active, the frame counter of the estimator frame the states are in (NaN: none)]
         self._role = self.DeclareDiscreteState([0.0, np.nan])
+        self._role_group = int(self._role)  # (pydrake converts a DiscreteStateIndex per call)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._tick)
         self.DeclareStateOutputPort("fc_command", self._command)
         self.DeclareStateOutputPort("controller_status", self._status)
@@ -128,7 +129,7 @@ class Controller(LeafSystem):
     # --- the tick -----------------------------------------------------------------------------
 
     def _tick(self, context, discrete_state):
-        role = context.get_discrete_state(self._role).get_value()
+        role = context.get_discrete_state().get_value(self._role_group)
         was_active, frame_counter = role.tolist()
         if self._active.Eval(context)[0] < 0.5:
             discrete_state.set_value(self._role, [0.0, frame_counter])
@@ -149,7 +150,7 @@ class Controller(LeafSystem):
             if estimate is not None:
                 frame_counter = float(estimate[_FRAME_COUNTER])
             if was_active != 1.0 or frame_counter != role[1]:  # (else the role is unchanged)
-                discrete_state.set_value(self._role, [1.0, frame_counter])
+                discrete_state.set_value(self._role_group, np.array([1.0, frame_counter]))
             self._update_active(context, discrete_state, estimate)
         finally:
             self.compute_timer.record(stamp, "tick", time.perf_counter() - start)

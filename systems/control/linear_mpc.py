@@ -299,6 +299,8 @@ class LinearMpc(Controller):
         self._disturbance = self.DeclareDiscreteState(np.concatenate([np.zeros(3),
                                                                       np.full(3, np.nan)]))
         self.DeclareStateOutputPort("prediction", self._solution)
+        self._groups = tuple(int(group) for group in (self._command, self._solution, self._failures,
+                                                      self._disturbance, self._status))
         self.DeclareVectorOutputPort(
             "disturbance", 3, lambda context, out: out.SetFromVector(
                 context.get_discrete_state(self._disturbance).get_value()[:3]))
@@ -364,7 +366,7 @@ class LinearMpc(Controller):
         reference = self._reference.Eval(context)
         r = reference.tolist()
         heading = r[_R_HEADING]
-        if estimate is None or not np.isfinite(reference).all():
+        if estimate is None or not all(map(math.isfinite, r)):
             self._fail(context, discrete_state, now, heading, MpcReason.BAD_ESTIMATE, 0)
             return
         e = estimate.tolist()
@@ -386,13 +388,16 @@ class LinearMpc(Controller):
         cos_yaw, sin_yaw = float(np.cos(yaw)), float(np.sin(yaw))
         x0 = np.array(to_navigation([p - q for p, q in zip(p_EB, p_ref)], cos_yaw, sin_yaw)
                       + to_navigation(v_EB, cos_yaw, sin_yaw) + [theta, phi, theta_dot, phi_dot])
-        previous = context.get_discrete_state(self._solution).get_value()[:NUM_INPUTS]
+        # (state groups by plain int: pydrake converts a DiscreteStateIndex on every call)
+        command, solution_group, failures, disturbance, status = self._groups
+        previous = context.get_discrete_state().get_value(solution_group)[:NUM_INPUTS]
         d_W = self._estimate_disturbance(context, v_EB)
         d_N = to_navigation(d_W, cos_yaw, sin_yaw)
         d_N_vector = np.array(d_N)
         v_N = to_navigation(r[_R_V], cos_yaw, sin_yaw)
         self._qp.update(x0, *self._references(v_N, d_N, self._s_y),
-                        previous if np.isfinite(previous).all() else None, d_N_vector)
+                        previous if all(map(math.isfinite, previous.tolist())) else None,
+                        d_N_vector)
         result = self._qp.solve()
         solver_status = result.status
         if not result.ok:
@@ -401,12 +406,12 @@ class LinearMpc(Controller):
         solution = result.x[self._qp._u_index]
         u_0 = solution[:NUM_INPUTS]
         v_next_N = (self._qp.Ad @ x0 + self._qp.Bd @ u_0 + self._qp.Ed @ d_N_vector)[3:6]
-        discrete_state.set_value(self._disturbance, d_W + to_navigation(
-            v_next_N.tolist(), float(np.cos(-yaw)), float(np.sin(-yaw))))
-        discrete_state.set_value(self._command, self._to_command(u_0, now, heading))
-        discrete_state.set_value(self._solution, solution)
-        discrete_state.set_value(self._failures, _ZERO)
-        discrete_state.set_value(self._status, np.array([1.0, _OK, float(solver_status)]))
+        discrete_state.set_value(disturbance, np.array(d_W + to_navigation(
+            v_next_N.tolist(), float(np.cos(-yaw)), float(np.sin(-yaw)))))
+        discrete_state.set_value(command, self._to_command(u_0, now, heading))
+        discrete_state.set_value(solution_group, solution)
+        discrete_state.set_value(failures, _ZERO)
+        discrete_state.set_value(status, np.array([1.0, _OK, float(solver_status)]))
 
     def _age(self, stamp, now: float) -> float:
         """How long before `now` `stamp` was, clipped to [0, max_prediction]."""
@@ -415,7 +420,7 @@ class LinearMpc(Controller):
     def _estimate_disturbance(self, context, v_W: list[float]) -> list[float]:
         """d_W moved by `disturbance_gain` of the velocity the model failed to predict over the
         last tick, bounded to `max_disturbance` (no prediction yet, or gain 0: unchanged)."""
-        stored = context.get_discrete_state(self._disturbance).get_value().tolist()
+        stored = context.get_discrete_state().get_value(self._groups[3]).tolist()
         d_W, v_predicted = stored[:3], stored[3:]
         gain, dt = self._p.disturbance_gain, self._p.period
         if gain <= 0 or not all(map(math.isfinite, v_predicted)):
