@@ -62,10 +62,11 @@ class TargetMotion:
 @dc.dataclass
 class Onboard:
     """The onboard stack (diagrams/stacks.py `STACKS`) and its parts' parameters. `estimator`:
-    mocap, vio (L Sec. 5.1: the forward RGB-D camera `vio_camera`, its frame at the take-off
-    point), bank (M Sec. 3.5: the arbiter) or a filter of the bank."""
+    vio (the default, L Sec. 5.1: the forward RGB-D camera `vio_camera`, its frame at the
+    take-off point), mocap (the idealization: true pose plus noise and delay, an explicit
+    option as DESIGN.md asks), bank (M Sec. 3.5: the arbiter) or a filter of the bank."""
     stack: str = choice("landing", "landing_managed", "waypoints", "hover")
-    estimator: str = "mocap"
+    estimator: str = "vio"
     controller: str = "linear_mpc"       # landing_managed: a controller of `control_manager`
     linear_mpc: LinearMpcParams = param_file(LinearMpcParams, "linear_mpc.yaml")
     linear_model: LinearModelParams = param_file(LinearModelParams, "linear_model.yaml")
@@ -223,13 +224,14 @@ def placed_target(scenario: Scenario):
                       initial_heading=motion.heading, **profile)
 
 
-def vehicle_config(scenario: Scenario) -> SimVehicleConfig:
+def vehicle_config(scenario: Scenario, vio_camera: bool = True) -> SimVehicleConfig:
     """The simulated vehicle of the scenario: with a landing mission, the target car placed by
-    `target_motion`; with VIO odometry, the forward RGB-D camera `onboard.vio_camera`."""
+    `target_motion`; with VIO odometry (and `vio_camera`), the forward RGB-D camera
+    `onboard.vio_camera`."""
     config = scenario.vehicle
     if isinstance(scenario.mission, LandingMissionParams):
         config = dc.replace(config, target=placed_target(scenario))
-    if scenario.onboard.estimator == "vio":
+    if scenario.onboard.estimator == "vio" and vio_camera:
         config = dc.replace(config, rgbd_camera=scenario.onboard.vio_camera)
     validate(config, f"scenario {scenario.name}")
     return config

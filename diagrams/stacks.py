@@ -18,7 +18,7 @@ from alight.diagrams.onboard.landing import add_landing_onboard
 from alight.diagrams.onboard.landing_managed import add_landing_managed
 from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.diagrams.onboard.pilot import add_pilot_onboard, pilot_model
-from alight.diagrams.onboard.vio import VioRun
+from alight.diagrams.onboard.vio import vio_from_start
 from alight.diagrams.onboard.waypoints import add_waypoint_onboard, mission_duration
 from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.scenario import Scenario
@@ -36,16 +36,15 @@ class OnboardStack:
     parts: object = None
 
 
-def scenario_estimator(scenario: Scenario):
+def scenario_estimator(scenario: Scenario, anchored: bool = True):
     """The odometry hook `(builder, vehicle) -> STATE_ESTIMATE port` of `onboard.estimator` in
-    simulation: mocap (sensor model), the VIO (its frame at the take-off point, a surveyed
-    start) or the estimator bank."""
+    simulation: the VIO (its frame at the take-off point, a surveyed start), mocap (sensor
+    model) or the estimator bank (`anchored`: as `scenario_odometry`)."""
     onboard = scenario.onboard
     if onboard.estimator == "vio":
-        start = [*scenario.vehicle.initial_position, onboard.vio.initial_position[2]]
-        return VioRun(dc.replace(onboard.vio, initial_position=start))
+        return vio_from_start(onboard.vio, scenario.vehicle.initial_position)
     return scenario_odometry(onboard.estimator, onboard.estimator_bank, onboard.linear_model,
-                             f"scenario {scenario.name}", others=("vio",),
+                             f"scenario {scenario.name}", anchored=anchored, others=("vio",),
                              key="onboard.estimator") or mocap_odometry(onboard.mocap)
 
 

@@ -1,5 +1,5 @@
-"""A landing scenario declares the estimator it flies on (issue 9): mocap by default, the bank
-(its arbiter) or one of its filters; a bad name stops at load with the key named; the direct
+"""A scenario declares the estimator it flies on (issue 9): VIO by default (issue 20: realistic
+by default, mocap an explicit option), the bank (its arbiter) or one of its filters; a bad name stops at load with the key named; the direct
 stack is built on the anchored bank and takes off on it."""
 import numpy as np
 import pytest
@@ -7,8 +7,11 @@ import yaml
 from pydrake.systems.framework import DiagramBuilder
 
 from alight.diagrams.onboard.estimation import BankOdometry, scenario_odometry
+from alight.diagrams.onboard.vio import VioRun
+from alight.diagrams.running.mission import Mission
 from alight.diagrams.running.runner import build, run
-from alight.diagrams.scenario import load_scenario
+from alight.diagrams.scenario import Onboard, load_scenario, vehicle_config
+from alight.diagrams.stacks import scenario_estimator
 from alight.models import model_path
 from alight.systems.params import ConfigError
 
@@ -22,15 +25,36 @@ def _scenario_file(tmp_path, **onboard):
     return path
 
 
-def test_the_scenario_flies_mocap_unless_it_declares_the_bank(tmp_path):
-    field = load_scenario("field")
-    assert field.onboard.estimator == "mocap"
-    assert scenario_odometry("mocap", field.onboard.estimator_bank,
-                             field.onboard.linear_model) is None
+def test_every_scenario_that_flies_on_odometry_flies_vio_unless_told_otherwise(tmp_path):
+    for name in ("field", "mbzirc", "waypoints"):
+        scenario = load_scenario(name)
+        assert scenario.onboard.estimator == "vio", name
+        odometry = scenario_estimator(scenario)
+        assert isinstance(odometry, VioRun)  # its frame E starts at the take-off point
+        assert odometry.params.initial_position[:2] == scenario.vehicle.initial_position
+        assert vehicle_config(scenario).rgbd_camera.source == "geometric"
+    assert Onboard().estimator == "vio"
+    mocap = load_scenario("field", overrides=["onboard.estimator: mocap"])
+    assert scenario_odometry("mocap", mocap.onboard.estimator_bank,
+                             mocap.onboard.linear_model) is None
+    assert vehicle_config(mocap).rgbd_camera.source == "none"  # no VIO camera to render
     scenario = load_scenario(str(_scenario_file(tmp_path, estimator="rtk")))
     odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank,
                                  scenario.onboard.linear_model)
     assert isinstance(odometry, BankOdometry) and odometry.request == "rtk" and odometry.anchored
+
+
+def test_the_mission_api_flies_vio_unless_told_otherwise(tmp_path):
+    """`Mission.simulated` builds the VIO on the forward RGB-D camera by default; mocap only when
+    asked for; a name it does not know is refused."""
+    with Mission.simulated(run_dir=tmp_path / "vio") as mission:
+        assert mission.diagram.HasSubsystemNamed("vio")
+        assert not mission.diagram.HasSubsystemNamed("mocap")
+        assert mission.metadata["vehicle_config"].rgbd_camera.source == "geometric"
+    with Mission.simulated(run_dir=tmp_path / "mocap", estimator="mocap") as mission:
+        assert not mission.diagram.HasSubsystemNamed("vio")
+    with pytest.raises(ValueError, match="'gps' is not 'vio' or 'mocap'"):
+        Mission.simulated(run_dir=tmp_path / "bad", estimator="gps")
 
 
 def test_an_unknown_estimator_is_refused_at_load_naming_the_file_and_the_key(tmp_path):

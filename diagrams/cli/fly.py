@@ -41,6 +41,7 @@ def run(args) -> int:
     from alight.diagrams.running.simulation import make_meshcat
     from alight.diagrams.analysis.flight import managed_flight_failures, summarize_managed_flight
     from alight.diagrams.running.flights import fly_plan
+    from alight.diagrams.scenario import vehicle_config
     from alight.systems.params import ConfigError
     try:
         plan = _flight_plan(args)
@@ -51,7 +52,7 @@ def run(args) -> int:
         print(f"alight fly: {e}", file=sys.stderr)
         return 2
     meshcat = make_meshcat(args.meshcat, args.record)
-    run = fly_plan(plan, scenario.vehicle, seed=scenario.random_seed, run_dir=args.run_dir,
+    run = fly_plan(plan, vehicle_config(scenario), seed=scenario.random_seed, run_dir=args.run_dir,
                    meshcat=meshcat,
                    record=args.record, realtime_rate=1.0 if args.meshcat else 0.0,
                    controller=args.controller, tracker=args.tracker, **stack)
@@ -80,11 +81,10 @@ def _flight_plan(args):
 
 def _fly_stack(args, scenario) -> dict:
     """The managed stack's options of `alight fly`: the scenario's control manager, names
-    checked against its lists, the estimator (mocap or the bank), the scheduled controller
-    switches."""
+    checked against its lists, the scenario's estimator (VIO by default, mocap, the bank), the
+    scheduled controller switches."""
     from alight.diagrams.onboard.control_manager import parse_switch
-    from alight.diagrams.onboard.estimation import scenario_odometry
-    from alight.diagrams.onboard.mpc_loop import mocap_odometry
+    from alight.diagrams.stacks import scenario_estimator
     from alight.systems.params import ConfigError
     config = scenario.onboard.control_manager
     for option, name, names in (("--controller", args.controller, config.names),
@@ -94,11 +94,8 @@ def _fly_stack(args, scenario) -> dict:
                               f"(onboard.control_manager)")
     stack = {"config": config, "schedule": [parse_switch(text, config.names)
                                             for text in args.switch_controller_at]}
-    odometry = scenario_odometry(scenario.onboard.estimator, scenario.onboard.estimator_bank,
-                                 scenario.onboard.linear_model, "alight fly --estimator",
-                                 anchored=False)
-    if odometry is None:
-        stack["odometry"] = mocap_odometry(scenario.onboard.mocap)
-    else:
-        stack.update(odometry=odometry, log=odometry.log)
+    odometry = scenario_estimator(scenario, anchored=False)
+    stack["odometry"] = odometry
+    if hasattr(odometry, "log"):  # the VIO's and the bank's own streams
+        stack["log"] = odometry.log
     return stack

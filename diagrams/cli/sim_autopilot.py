@@ -50,7 +50,8 @@ def run(args) -> int:
     except ConfigError as e:
         print(f"alight sim-autopilot: {e}", file=sys.stderr)
         return 2
-    config = vehicle_config(scenario)
+    # the onboard side flies on the frame channel's mocap (hw/hil.py): no VIO camera here
+    config = vehicle_config(scenario, vio_camera=False)
     params = load_sim_autopilot_params(args.autopilot)
     frames = frame_address(args.frames, args.listen)
     meshcat = make_meshcat(args.meshcat, args.record)

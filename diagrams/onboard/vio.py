@@ -5,6 +5,8 @@ odometry builder for `mpc_loop.add_mpc_control` / `fly_waypoints` (the VIO close
 beside it)."""
 
 
+import dataclasses as dc
+
 from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.models import model_path
 from alight.systems.boundary import STATE_ESTIMATE
@@ -71,3 +73,9 @@ class VioRun:
                     period=self.params.period)
         loggers.add(builder, "vio_estimate", self.vio.GetOutputPort("state_estimate"),
                     STATE_ESTIMATE, period=self.params.period)
+
+
+def vio_from_start(params: VioParams, start_xy) -> VioRun:
+    """`VioRun` of `params` whose estimator frame E starts at the take-off point `start_xy`
+    (x, y in W [m], a surveyed start; the height at rest stays `params`')."""
+    return VioRun(dc.replace(params, initial_position=[*start_xy, params.initial_position[2]]))

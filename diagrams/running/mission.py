@@ -33,6 +33,7 @@ from pydrake.systems.framework import DiagramBuilder
 from alight.diagrams.onboard.control_manager import load_control_manager_config
 from alight.diagrams.onboard.mpc_loop import mocap_odometry
 from alight.diagrams.onboard.uav import ManagedOnboard, add_managed_onboard, load_uav_manager_params
+from alight.diagrams.onboard.vio import load_rgbd_camera_params, load_vio_params, vio_from_start
 from alight.diagrams.running.paths import default_run_dir
 from alight.diagrams.running.run_log import RunLog, open_run_folder, write_run_folder
 from alight.diagrams.running.simulation import evaluate, finish_recording, start_simulation
@@ -100,14 +101,21 @@ class Mission:
     @classmethod
     def simulated(cls, vehicle_config: SimVehicleConfig | None = None, seed: int = 0,
                   run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
-                  strict: bool = True, log=None, **stack) -> "Mission":
+                  strict: bool = True, log=None, estimator: str = "vio",
+                  **stack) -> "Mission":
         """The managed stack on the simulated vehicle (`stack`: arguments of
         `add_managed_onboard`, e.g. odometry, schedule, config, uav_params; `managed_stack`
-        fills in the ones not given, odometry mocap); `log(builder, loggers)` may add streams;
-        with `meshcat` the flight view labels the UAV manager's phase, and with `record`
-        (FILE.html) the replay is written on `close`."""
+        fills in the ones not given); without an `odometry`, it flies on the `estimator`: vio
+        (L Sec. 5.1, the default; the forward RGB-D camera of models/rgbd_camera_landing.yaml
+        unless `vehicle_config` has one) or mocap (the idealization, an explicit option).
+        `log(builder, loggers)` may add streams; with `meshcat` the flight view labels the UAV
+        manager's phase, and with `record` (FILE.html) the replay is written on `close`."""
         vehicle_config = vehicle_config or SimVehicleConfig()
-        stack = managed_stack(stack, odometry=lambda: mocap_odometry(MocapParams()))
+        odometry = "given" if stack.get("odometry") is not None else estimator
+        if odometry != "given":
+            vehicle_config, stack["odometry"] = simulated_odometry(vehicle_config, estimator)
+            log = _both(log, getattr(stack["odometry"], "log", None))
+        stack = managed_stack(stack)
         builder = DiagramBuilder()
         vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(vehicle_config, meshcat))
         onboard = add_managed_onboard(builder, vehicle, **stack)
@@ -120,7 +128,8 @@ class Mission:
         simulator = start_simulation(diagram, seed, meshcat, record, realtime_rate)
         run_dir = Path(run_dir) if run_dir is not None else default_run_dir("mission", seed)
         mission = cls(diagram, onboard, simulator, run_dir,
-                      {"seed": seed, "vehicle_config": vehicle_config}, strict)
+                      {"seed": seed, "vehicle_config": vehicle_config, "estimator": odometry},
+                      strict)
         if meshcat is not None and record is not None:
             mission.closers.append(lambda: finish_recording(meshcat, record))
         return mission
@@ -286,6 +295,24 @@ class Mission:
 # The shipped parameters (models/) of the managed stack's parts a caller does not give.
 STACK_FILES = {"config": load_control_manager_config, "uav_params": load_uav_manager_params,
                "constraint_params": load_constraint_manager_params}
+
+
+def simulated_odometry(config: SimVehicleConfig, estimator: str):
+    """(the vehicle config, the odometry hook) of `Mission.simulated`'s `estimator`."""
+    if estimator == "mocap":
+        return config, mocap_odometry(MocapParams())
+    if estimator != "vio":
+        raise ValueError(f"Mission.simulated: estimator {estimator!r} is not 'vio' or 'mocap'")
+    if config.rgbd_camera.source == "none":
+        config = dc.replace(config, rgbd_camera=load_rgbd_camera_params("rgbd_camera_landing.yaml"))
+    return config, vio_from_start(load_vio_params(), config.initial_position)
+
+
+def _both(first, second):
+    """One `log(builder, loggers)` calling both (either may be None)."""
+    if first is None or second is None:
+        return first or second
+    return lambda builder, loggers: (first(builder, loggers), second(builder, loggers))
 
 
 def managed_stack(stack: dict, **defaults) -> dict:
