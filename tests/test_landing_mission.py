@@ -134,8 +134,11 @@ def lost_after() -> float:
 
 
 def test_target_unseen_in_follow_is_lost_when_its_prediction_is_too_uncertain():
+    """With `pursuit_time` 0 (the paper's return), the first tick at which 3 sigma_xy passes
+    `lost_radius` sends the mission back to the waypoint."""
     # The vehicle (scripted) hovers at the waypoint: 3 m from the target, it stays in Follow.
-    logs = fly(moving_target(1.0, appear=17.0, hide=[(18.02, 30.0)]), 25.0, vehicle=HOVER)
+    logs = fly(moving_target(1.0, appear=17.0, hide=[(18.02, 30.0)]), 25.0, vehicle=HOVER,
+               params=LandingMissionParams(pursuit_time=0.0))
     events = transitions(logs)
     follow = [t for t, m, _ in events if m == Mode.FOLLOW][0]
     back = [(t, r) for t, m, r in events if m == Mode.WAYPOINT and t > follow]
@@ -144,6 +147,31 @@ def test_target_unseen_in_follow_is_lost_when_its_prediction_is_too_uncertain():
     # the next tick, logged one tick later
     assert seen + lost_after() <= back[0][0] <= seen + lost_after() + 0.1 + 1e-6
     assert all(m < Mode.LANDING_P1 for _, m, _ in events)
+
+
+def test_a_lost_target_is_pursued_along_its_last_motion_then_searched_from_the_waypoint():
+    """Lost (3 sigma_xy past lost_radius, about 2.5 s unseen here), Follow flies on along the
+    target's last motion until `pursuit_time` (3 s) after the last detection, then returns to
+    the waypoint; a car seen again during the pursuit is followed without a return."""
+    assert lost_after() < LandingMissionParams().pursuit_time == 3.0
+    logs = fly(moving_target(4.0, appear=17.0, hide=[(18.02, 40.0)]), 25.0, vehicle=HOVER)
+    events = transitions(logs)
+    back = [t for t, m, r in events if m == Mode.WAYPOINT and r == Reason.TARGET_LOST]
+    seen = 18.0
+    assert back and seen + 3.0 <= back[0] <= seen + 3.0 + 0.1 + 1e-6
+    t, reference = logs["reference"]
+    y = reference[:, REFERENCE.slice("p")][:, 1]
+    v_y = reference[:, REFERENCE.slice("v")][:, 1]
+    pursuing = (t > seen + lost_after() + 0.1) & (t < back[0])
+    assert pursuing.sum() >= 5   # the ticks between the loss (2.5 s) and 3 s
+    # on along the car's 4 m/s, ahead of where it was last seen (y = -8 m at 18 s)
+    np.testing.assert_allclose(v_y[pursuing], 4.0, atol=0.05)
+    assert np.all(np.diff(y[pursuing]) > 0.19) and np.all(y[pursuing] > -8.0 + 4.0 * 2.0)
+    assert np.all(y[t > back[0] + 0.1] == 0.0)   # the waypoint
+    # seen again 2.6 s after the loss: still Follow, no return to the waypoint
+    again = transitions(fly(moving_target(4.0, appear=17.0, hide=[(18.02, 20.6)]), 25.0,
+                            vehicle=HOVER))
+    assert [m for _, m, _ in again] == [Mode.TAKING_OFF, Mode.WAYPOINT, Mode.FOLLOW]
 
 
 def test_a_short_loss_in_phase_1_aborts_to_follow_not_to_the_waypoint_and_lands():

@@ -9,7 +9,11 @@ is *tracked* while seen (a fresh detection) or while the estimate is valid and i
 horizontal position is known within `lost_radius` at `sigma_k` standard deviations (k sigma_xy,
 sigma_xy^2 = var_x + var_y); during a short loss the mission keeps pursuing the predicted
 position and the detector searches around it. Only a target no longer tracked is lost (L's fixed
-t_DetectionTimeOut only gates the first Follow).
+t_DetectionTimeOut only gates the first Follow). A lost target is still pursued (issue 23: the
+paper's return to the waypoint left a car driving at 5.7 m/s behind for good): Follow flies on
+along the target's last filtered motion (constant velocity, at Follow's height) until
+`pursuit_time` after the last detection, and only then returns to the waypoint to search; a
+detection meanwhile is followed again.
 
 Predicted miss at touchdown: |e_xy| (the horizontal tracking error now) + k sigma_xy(t_blind), the
 target's horizontal position uncertainty propagated over the blind end of the descent (from
@@ -23,10 +27,12 @@ velocity noise density; the position-velocity cross-covariance is not in the est
 - Waypoint: fly to and hover at the waypoint. On a detection (a valid target estimate whose last
   accepted measurement is younger than `detection_timeout`, and tracked): Follow.
 - Follow: position and velocity references from the target (predicted, low-pass filtered), at the
-  waypoint's height (climbing back to it at `climb_rate` after an abort). Target lost: Waypoint.
+  waypoint's height (climbing back to it at `climb_rate` after an abort). Target lost: the
+  references go on along its last filtered motion; not seen for `pursuit_time`: Waypoint.
   Back at the waypoint's height with the horizontal position and velocity errors under
   `position_threshold`, `velocity_threshold` and k sigma_xy(t_go) under `miss_limit`: Phase 1.
-- Landing Phase 1: as Follow, descending at `descending_p1`; target lost: Waypoint;
+- Landing Phase 1: as Follow, descending at `descending_p1`; target lost: Follow (climbing back,
+  pursuing);
   k sigma_xy(t_go) over `miss_limit`: Follow (abort). Height above the target under
   `landing_p2_offset`: Landing Phase 2 if the predicted miss is under `miss_limit`, else Follow.
 - Landing Phase 2: descending at `descending_p2`; no timeout (it cannot be cancelled). Height
@@ -84,6 +90,9 @@ class LandingMissionParams:
     arm_time: float = bounded(0.5, 0.0, 10.0, "s")              # rotors idle before lift-off
     heading: float = bounded(0.0, -360.0, 360.0, "deg")         # psi_r (zero in the paper)
     search_timeout: float = bounded(30.0, 1.0, 3600.0, "s")     # at the waypoint, then home
+    # a lost target pursued along its last motion until this long after the last detection,
+    # then Waypoint (0: the paper's return as soon as it is lost)
+    pursuit_time: float = bounded(3.0, 0.0, 60.0, "s")
     home_touchdown: float = bounded(0.1, 0.01, 1.0, "m")         # on the ground at home within
 
 
@@ -122,7 +131,8 @@ class Reason(enum.IntEnum):
     ESTIMATE_VALID = 1        # Idle -> Taking Off
     TAKEOFF_HEIGHT = 2        # Taking Off -> Waypoint
     DETECTION = 3             # Waypoint -> Follow
-    TARGET_LOST = 4           # Follow / Landing Phase 1 -> Waypoint: k sigma_xy > lost_radius
+    TARGET_LOST = 4           # Landing Phase 1 -> Follow: k sigma_xy > lost_radius; Follow ->
+                              # Waypoint: lost and not seen for pursuit_time
     CAUGHT_UP = 5             # Follow -> Landing Phase 1
     BELOW_P2_OFFSET = 6       # Landing Phase 1 -> Landing Phase 2
     BELOW_LANDED_OFFSET = 7   # Landing Phase 2 -> Landed
@@ -324,9 +334,15 @@ class LandingMission(LeafSystem):
             if p_B[2] - start[2] <= p.home_touchdown and abs(v_B[2]) <= p.home_touchdown:
                 go(Mode.LANDED, Reason.ON_THE_GROUND)
         elif mode in (Mode.FOLLOW, Mode.LANDING_P1):
-            if not tracked:   # really lost: search from the waypoint (L Sec. 6.4)
+            unseen = now - _STATE.get(x, "last_detection")
+            if not tracked and unseen > p.pursuit_time:
+                # really lost: search from the waypoint (L Sec. 6.4)
                 go(Mode.WAYPOINT, Reason.TARGET_LOST)
                 set_reference(p.waypoint, np.zeros(3))
+            elif not tracked:   # pursue its last filtered motion, at Follow's height
+                if mode == Mode.LANDING_P1:
+                    go(Mode.FOLLOW, Reason.TARGET_LOST)
+                follow_target(0.0)
             elif mode == Mode.FOLLOW:
                 follow_target(0.0)
                 e_v = np.linalg.norm(v_B[:2] - v_T[:2])
