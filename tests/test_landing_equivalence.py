@@ -16,6 +16,12 @@ The 2 ms harmonic rate grid (plant step 1 -> 2 ms, IMU 200 -> 250 Hz, issue 18) 
 landing against the 1 ms grid by: e_xy +0.1 mm, touchdown speed +0.036 m/s (+0.099 -> +0.135
 from the recorded), the car's speed +0.1 mm/s, tracking, touchdown and every transition unchanged
 at the mission's 50 ms.
+Re-recorded again when the mission's vertical reference velocity became its height profile's own
+rate instead of the target EKF's vertical velocity plus it (a mission change, not the world's;
+systems/mission/landing.py `follow_target`): from the previous recording, e_xy +1.3 mm, tracking
++0.09 s, touchdown +0.09 s and +0.150 m/s (1.73 -> 1.88; +0.135 of it the grid's, above),
+Landing Phase 1 to Landed each +0.1 s (the CAUGHT_UP at 21.75 instead of 21.65 s), the car's
+mean speed over the shifted window -8 mm/s.
 """
 import pytest
 
@@ -24,16 +30,16 @@ from alight.diagrams.running.runner import run as run_scenario
 from alight.diagrams.scenario import load_scenario
 from alight.systems.mission.landing import Mode, Reason
 
-RECORDED = dict(e_xy=0.2382, tracking_duration=5.79, mission_time=24.29, touchdown_speed=1.730,
-                target_speed=1.911)
+RECORDED = dict(e_xy=0.2395, tracking_duration=5.88, mission_time=24.38, touchdown_speed=1.880,
+                target_speed=1.903)
 TOLERANCE = dict(e_xy=0.02, tracking_duration=0.1, mission_time=0.1, touchdown_speed=0.15,
                  target_speed=0.05)
 TRANSITIONS = [(1.05, Mode.TAKING_OFF, Reason.ESTIMATE_VALID),
                (11.90, Mode.WAYPOINT, Reason.TAKEOFF_HEIGHT),
                (18.55, Mode.FOLLOW, Reason.DETECTION),
-               (21.65, Mode.LANDING_P1, Reason.CAUGHT_UP),
-               (23.10, Mode.LANDING_P2, Reason.BELOW_P2_OFFSET),
-               (24.30, Mode.LANDED, Reason.BELOW_LANDED_OFFSET)]
+               (21.75, Mode.LANDING_P1, Reason.CAUGHT_UP),
+               (23.20, Mode.LANDING_P2, Reason.BELOW_P2_OFFSET),
+               (24.40, Mode.LANDED, Reason.BELOW_LANDED_OFFSET)]
 TRANSITION_TOLERANCE = 0.1  # s
 
 

@@ -193,6 +193,30 @@ def test_detection_loss_in_landing_phase_2_does_not_cancel_the_landing():
     assert hidden[-1][1] == Mode.LANDED
 
 
+def test_a_target_diverging_vertically_does_not_move_the_height_reference():
+    """Follow holds its height with a vertical reference velocity of 0 whatever the target EKF's
+    vertical velocity says (a diverged EKF once said -4.6 m/s at a held height, and the MPC flew
+    the vehicle into the ground); the descent's is the descent rate."""
+    def sinking(t):
+        seen = moving_target(2.0, appear=17.0)(t)
+        return None if seen is None else (seen[0] + [0.0, 0.0, -4.6 * (t - 17.0)],
+                                           seen[1] + [0.0, 0.0, -4.6])
+    logs = fly(sinking, 21.0, vehicle=HOVER)
+    t, reference = logs["reference"]
+    following = t > [at for at, m, _ in transitions(logs) if m == Mode.FOLLOW][0] + 0.1
+    assert following.sum() > 20
+    np.testing.assert_array_equal(reference[following, REFERENCE.slice("v")][:, 2], 0.0)
+    np.testing.assert_allclose(reference[following, REFERENCE.slice("p")][:, 2],
+                               LandingMissionParams().waypoint[2])   # held
+    events = transitions(fly(moving_target(2.0, appear=17.0), 40.0))
+    p1, p2 = [at for at, m, _ in events if m in (Mode.LANDING_P1, Mode.LANDING_P2)]
+    logs = fly(moving_target(2.0, appear=17.0), p2)
+    t, reference = logs["reference"]
+    descending = (t > p1 + 0.1) & (t < p2 - 0.1)
+    np.testing.assert_allclose(reference[descending, REFERENCE.slice("v")][:, 2],
+                               -LandingMissionParams().descending_p1)
+
+
 def test_target_that_cannot_be_caught_never_triggers_a_landing_phase():
     # The vehicle (scripted) stays at the waypoint; the target crosses the view and leaves.
     in_view = lambda t: (moving_target(8.0)(t) if abs(8.0 * (t - 20.0)) < 4.0 else None)

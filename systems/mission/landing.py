@@ -271,7 +271,11 @@ class LandingMission(LeafSystem):
         def follow_target(descent_rate: float):
             """L Fig. 8 reference: filtered predicted target horizontally; the altitude held
             (Follow; climbing back to the waypoint's height after an abort) or descending toward
-            the target (landing phases)."""
+            the target (landing phases). The vertical velocity is the height profile's own rate
+            (0 held, the climb or the descent), not the target's: a target EKF that diverged
+            vertically after a bad re-acquisition (its z velocity -4.6 m/s at 5 m/s, VIO
+            campaign) made Follow's reference sink at a held height and flew the vehicle into
+            the ground."""
             p_f, v_f = filter_reference(_STATE.get(x, "p_filtered"), _STATE.get(x, "v_filtered"),
                                         p_T, v_T, p.t_prediction, p.cutoff_position,
                                         p.cutoff_velocity, p.period)
@@ -279,11 +283,9 @@ class LandingMission(LeafSystem):
             z_ref, ceiling = _STATE.get(x, "p_ref")[2], p.waypoint[2]
             if descent_rate > 0.0 or z_ref >= ceiling:
                 z = max(z_ref - descent_rate * p.period, p_T[2] - 0.5)  # not through the plate
-                v_z = v_T[2] - descent_rate
             else:   # climbing back to Follow's height after an abort
                 z = min(z_ref + p.climb_rate * p.period, ceiling)
-                v_z = v_T[2] + (p.climb_rate if z < ceiling else 0.0)
-            set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], v_z])
+            set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], (z - z_ref) / p.period])
 
         def start_following():
             x[_STATE.slice("p_filtered")] = p_T + p.t_prediction * v_T
