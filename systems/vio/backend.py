@@ -37,13 +37,15 @@ class BackendParams:
     max_speed: float = bounded(40.0, 1.0, 1000.0, "m/s")          # beyond: the solution diverged
     # landmarks one keyframe observes in the window, at most (the bound on the back end's work)
     max_landmarks: int = bounded(110, 4, 10000)
-    # iSAM2's linear solver. Cholesky (GTSAM's default) declared the window's system
-    # indeterminate when keyframes came every camera frame at 5.7 m/s (the gyro bias link of a
-    # 33 ms IMU factor carries an information of about 1e11, which we take to be the cause),
-    # each failure a window restart: the front end's min_keyframe_gap keeps keyframes apart
-    # instead. QR factorizes the same system without squaring it and did not fail, at 2.7x the
-    # back end's time (bench/vio.py).
+    # iSAM2's linear solver of a window. Cholesky (GTSAM's default) declared the window's system
+    # indeterminate at 5-5.7 m/s ("near variable b385": the gyro bias link of a short IMU factor
+    # carries an information of about 1e11, which we take to be the cause), and each failure
+    # restarted the window from the IMU-propagated state: up to 24 restarts in 2 s and a VIO
+    # 81 m off in a windy 5.7 m/s chase. QR factorizes the same system without squaring it and
+    # never failed there, at 2.7x the back end's time (bench/vio.py). So a window starts on
+    # `factorization` and every window restarted after a failure on `restart_factorization`.
     factorization: str = choice("CHOLESKY", "QR")
+    restart_factorization: str = choice("QR", "CHOLESKY")
 
 
 @dc.dataclass
@@ -115,12 +117,13 @@ class SlidingWindow:
 
     def start(self, t: float, nav: gtsam.NavState, bias: gtsam.imuBias.ConstantBias,
               observations: list[Observation], position_std=None, attitude_std=None,
-              velocity_std=None) -> KeyframeState:
+              velocity_std=None, factorization: str | None = None) -> KeyframeState:
         """A new window whose first keyframe at `t` has priors on pose, velocity and bias (the
-        defaults: the initialization from rest; larger ones when restarting after a loss)."""
+        defaults: the initialization from rest; larger ones when restarting after a loss),
+        factorized with `factorization` (default the parameters')."""
         p = self._p
         isam = gtsam.ISAM2Params()
-        isam.setFactorization(p.factorization)
+        isam.setFactorization(factorization or p.factorization)
         self._smoother = gtsam.IncrementalFixedLagSmoother(p.lag, isam)
         self._landmarks = {}
         self._k += 1

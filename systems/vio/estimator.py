@@ -8,7 +8,8 @@ gyro bias from the mean rate, accelerometer bias along gravity from the specific
 TRACKING while keyframes are added; IMU_ONLY while frames have too few usable keypoints (the state
 is propagated by the IMU alone, its covariance growing); LOST after `max_imu_only` s without a
 keyframe (the estimate is reported invalid). When keypoints come back the window restarts from the
-propagated state with priors as wide as its covariance (recovery), in the same frame E.
+propagated state with priors as wide as its covariance (recovery), in the same frame E, factorized
+with `backend.restart_factorization` (QR: the failures at speed were Cholesky's, backend.py).
 """
 import dataclasses as dc
 import enum
@@ -207,7 +208,8 @@ class VioEstimator:
         self._window.start(stamp, propagated, state.bias, observations,
                            position_std=float(np.clip(np.sqrt(estimate[0].max()), 0.05, 50.0)),
                            attitude_std=float(np.clip(np.sqrt(estimate[1].max()), 0.005, 0.5)),
-                           velocity_std=float(np.clip(np.sqrt(estimate[2].max()), 0.05, 20.0)))
+                           velocity_std=float(np.clip(np.sqrt(estimate[2].max()), 0.05, 20.0)),
+                           factorization=self.p.backend.restart_factorization)
 
     def _after_keyframe(self) -> None:
         t_kf = self._window.state.t
