@@ -1,5 +1,6 @@
 """Fault campaign (issue 21): each fault injected into seeded landings (the `alight land` stack:
-scenario `field`, mocap odometry, geometric down camera) and waypoint flights (scenario
+scenario `field`, its default odometry: the VIO since issue 20, mocap in the table of
+docs/benchmarks.md at 153f32d; geometric down camera) and waypoint flights (scenario
 `waypoints`, the same linear MPC stack), every run judged from ground truth and contacts
 (diagrams/analysis/faults.py): landed / failsafe landing / not landed (safe) / unsafe (NaN at an
 actuator, hard impact, flyaway beyond 10 m of the mission's area).
