@@ -221,6 +221,7 @@ STATE_ESTIMATE = VectorLayout("state_estimate", [
     ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
     ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)],
     defaults={"q_EB": [1.0, 0.0, 0.0, 0.0], "q_OldNew": [1.0, 0.0, 0.0, 0.0], "valid": 1.0})
+_ESTIMATE_VALID = STATE_ESTIMATE.slice("valid").start   # (read at every controller tick)
 
 
 # Inputs of the vehicle boundary: `fc_command`, and `odometry`, the onboard state estimate the
@@ -230,7 +231,7 @@ INPUTS = {"fc_command": FC_COMMAND, "odometry": STATE_ESTIMATE}
 
 def estimate_is_valid(estimate: np.ndarray) -> bool:
     """A STATE_ESTIMATE that says it is valid and is finite (what controllers and trackers use)."""
-    return STATE_ESTIMATE.get(estimate, "valid") > 0.5 and bool(np.all(np.isfinite(estimate)))
+    return estimate[_ESTIMATE_VALID] > 0.5 and bool(np.isfinite(estimate).all())
 
 
 # `target_estimate` (DESIGN.md "The onboard stack"; L(5)-(10), (28)-(35)): the target EKF's estimate

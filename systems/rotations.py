@@ -21,13 +21,20 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1])
 
 
-def rotation_matrix(q: np.ndarray) -> np.ndarray:
-    """R_WB of the unit quaternion q_WB = (w, x, y, z) (normalized here)."""
-    w, x, y, z = _floats(q)
+def unit_floats(w: float, x: float, y: float, z: float) -> tuple[float, ...] | None:
+    """(w, x, y, z) normalized, as floats; None for the zero quaternion (no rotation)."""
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if norm == 0.0:
+        return None
+    return w / norm, x / norm, y / norm, z / norm
+
+
+def rotation_matrix(q: np.ndarray) -> np.ndarray:
+    """R_WB of the unit quaternion q_WB = (w, x, y, z) (normalized here)."""
+    unit = unit_floats(*_floats(q))
+    if unit is None:
         return np.full((3, 3), np.nan)
-    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    w, x, y, z = unit
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
@@ -86,10 +93,10 @@ def heading(R_WB: np.ndarray) -> float:
 def quaternion_heading(w: float, x: float, y: float, z: float) -> float:
     """`heading(rotation_matrix(q))` of q = (w, x, y, z) given as floats, without the matrix: the
     same operations on its two elements."""
-    norm = math.sqrt(w * w + x * x + y * y + z * z)
-    if norm == 0.0:  # (rotation_matrix's NaN matrix)
+    unit = unit_floats(w, x, y, z)
+    if unit is None:  # (rotation_matrix's NaN matrix)
         return float(np.arctan2(math.nan, math.nan))
-    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    w, x, y, z = unit
     return float(np.arctan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z)))
 
 

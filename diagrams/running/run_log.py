@@ -226,6 +226,7 @@ class RunLoggers:
                     [pa.array(rows[:, k]) for k in range(rows.shape[1])],
                     schema=self.folder.schemas[name]))
 
+
 def add_run_logging(builder, vehicle, command_port=None, period: float = 0.01,
                     flush_period: float = FLUSH_PERIOD) -> RunLoggers:
     """Logs the vehicle's vector outputs, its IMU and (if given) the command sent to it, with the

@@ -19,12 +19,11 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
-                                     CommandMode)
+                                     CommandMode, estimate_is_valid)
 from alight.systems.estimation.frames import frame_switch
 from alight.systems.rotations import heading_quaternion
 from alight.systems.timing import ComputeTimer
 
-_VALID = STATE_ESTIMATE.slice("valid").start
 _FRAME_COUNTER = STATE_ESTIMATE.slice("frame_counter").start
 
 
@@ -135,17 +134,14 @@ class Controller(LeafSystem):
             discrete_state.set_value(self._role, [0.0, frame_counter])
             return self._update_inactive(context, discrete_state)
         estimate = self._estimate.Eval(context)
-        # (estimate_is_valid, inline)
-        estimate = estimate if estimate[_VALID] > 0.5 and np.isfinite(estimate).all() else None
+        estimate = estimate if estimate_is_valid(estimate) else None
         # (compute_timer.measure, inline: the same clock and record, without the generator)
         stamp, start = context.get_time(), time.perf_counter()
         try:
             if was_active < 0.5:
                 self._activate(context, discrete_state, self._last.Eval(context), estimate)
                 frame_counter = np.nan
-            elif estimate is not None and estimate[_FRAME_COUNTER] != frame_counter \
-                    and (switch := frame_switch(estimate, frame_counter)):
-                # (frame_switch is None in the same frame, tested first here)
+            elif estimate is not None and (switch := frame_switch(estimate, frame_counter)):
                 self._switch_frame(context, discrete_state, *switch)
             if estimate is not None:
                 frame_counter = float(estimate[_FRAME_COUNTER])

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from alight.systems.params import bounded
-from alight.systems.rotations import _floats
+from alight.systems.rotations import _floats, unit_floats
 
 GRAVITY = 9.81
 NUM_STATES = 10
@@ -82,11 +82,11 @@ def euler_angles(w: float, x: float, y: float, z: float) -> tuple[float, float, 
     """`euler_pitch_roll_yaw` of q_WB = (w, x, y, z) given as floats: the operations of
     `rotation_matrix` on the five elements it uses, without the matrix (np.clip of a scalar as
     min/max, which give the same value, NaN included)."""
-    norm = math.sqrt(w * w + x * x + y * y + z * z)
-    if norm == 0.0:  # (rotation_matrix's NaN matrix)
+    unit = unit_floats(w, x, y, z)
+    if unit is None:  # (rotation_matrix's NaN matrix)
         R00 = R10 = R20 = R21 = R22 = math.nan
     else:
-        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        w, x, y, z = unit
         R00, R10 = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z)
         R20, R21, R22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
     theta = float(np.arcsin(min(max(-R20, -1.0), 1.0)))
@@ -106,9 +106,7 @@ def euler_rates(phi: float, theta: float, w_B: np.ndarray) -> tuple[float, float
 
 def rotate_to_navigation(vector_W: np.ndarray, yaw: float) -> np.ndarray:
     """A world vector expressed in the navigation frame N (W rotated by the heading)."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([c * vector_W[0] + s * vector_W[1], -s * vector_W[0] + c * vector_W[1],
-                     vector_W[2]])
+    return np.array(to_navigation(_floats(vector_W), float(np.cos(yaw)), float(np.sin(yaw))))
 
 
 def to_navigation(v_W: list[float], cos_yaw: float, sin_yaw: float) -> list[float]:

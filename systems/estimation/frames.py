@@ -16,6 +16,7 @@ from alight.systems.rotations import heading, quaternion_product, rotation_matri
 
 # discrete state: [frame counter seen, anchored (0/1), p_AE (3), q_AE (4)]
 _COUNTER, _ANCHORED, _P, _Q = 0, 1, slice(2, 5), slice(5, 9)
+_FRAME_COUNTER = STATE_ESTIMATE.slice("frame_counter").start  # (read at every controller tick)
 
 
 def compose(p_AB, q_AB, p_BC, q_BC) -> tuple[np.ndarray, np.ndarray]:
@@ -39,8 +40,8 @@ def frame_switch(estimate: np.ndarray, frame_counter: float
     """(R_OldNew, p_OldNew) when the STATE_ESTIMATE `estimate` is in another estimator frame than
     the one of `frame_counter` (the arbiter switched, M Sec. 3.5); None in the same frame or
     when `frame_counter` is NaN (no frame yet)."""
-    counter = STATE_ESTIMATE.get(estimate, "frame_counter")
-    if not np.isfinite(frame_counter) or counter == frame_counter:
+    counter = estimate[_FRAME_COUNTER]
+    if counter == frame_counter or not np.isfinite(frame_counter):
         return None
     return (rotation_matrix(STATE_ESTIMATE.get(estimate, "q_OldNew")),
             STATE_ESTIMATE.get(estimate, "p_OldNew"))
