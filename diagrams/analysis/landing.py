@@ -1,7 +1,7 @@
 """Scoring a landing run physically (DESIGN.md "Landing is judged physically") with the columns of
 L Table 1: outcome, average target speed, e_xy at touchdown, tracking duration (first detection
-to touchdown), plus the mission time, the touchdown speed, the peak force on one leg and the
-reason for a failure.
+to touchdown), plus the mission time, the touchdown speed, the peak force on one leg, the signed
+offset ahead of the platform's centre at touchdown and the reason for a failure.
 
 Judged from the simulation-only ground truth, never from the mission's own view, by contact: the
 vehicle's contacts with the platform, the ground and anything else, accumulated every 4 ms
@@ -42,11 +42,15 @@ class LandingScore:
     mission_time: float           # s, start to touchdown (or to the end of the run)
     touchdown_speed: float        # m/s, vertical, relative to the platform (nan without one)
     peak_leg_force: float         # N, the largest normal force on one leg (nan without touchdown)
+    # m at touchdown along the platform's forward axis x_T, signed (+: ahead of its centre): a
+    # reference that leads or lags the car shows here as a bias growing with its speed
+    e_ahead: float = float("nan")
 
     def row(self) -> str:
         """The run as a row of L Table 1."""
         outcome = "S" if self.success else "F"
-        return (f"v {self.target_speed:4.1f} m/s  e_xy {100 * self.e_xy:5.1f} cm  tracking "
+        return (f"v {self.target_speed:4.1f} m/s  e_xy {100 * self.e_xy:5.1f} cm (ahead "
+                f"{100 * self.e_ahead:+5.1f})  tracking "
                 f"{self.tracking_duration:5.2f} s  mission {self.mission_time:5.1f} s  "
                 f"touchdown {self.touchdown_speed:4.2f} m/s  peak leg {self.peak_leg_force:4.0f} N"
                 f"  {outcome}  ({self.reason})")
@@ -102,7 +106,8 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
             return LandingScore(False, reason, speed(end), nan, nan, float(t[end]), nan, nan)
         return LandingScore(False, reason, speed(end), float(np.linalg.norm(rel[touchdown, :2])),
                             t[end] - first_detection, float(t[end]),
-                            _descent_speed(v_B, v_T, touchdown), peak_leg_force)
+                            _descent_speed(v_B, v_T, touchdown), peak_leg_force,
+                            float(rel_T[touchdown, 0]))
 
     if takeoff is None:
         return failed("never took off", len(t) - 1)
@@ -158,7 +163,7 @@ def score_landing(run: RunLog, vertical_limit: float, horizontal_limit: float,
             return failed(reason, touchdown, touchdown)
     return LandingScore(True, "landed", speed(touchdown), float(np.linalg.norm(rel[touchdown, :2])),
                         float(t[touchdown] - first_detection), float(t[touchdown]), vertical,
-                        peak_leg_force)
+                        peak_leg_force, float(rel_T[touchdown, 0]))
 
 
 COLLIDED = "hit the car or touched with the airframe"

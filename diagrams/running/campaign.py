@@ -18,7 +18,7 @@ from alight.diagrams.scenario import Scenario, load_scenario
 
 COLUMNS = ["target_speed_setting", "seed", "success", "reason", "target_speed", "e_xy",
            "tracking_duration", "mission_time", "touchdown_speed", "peak_leg_force", "wall_time",
-           "run_dir"]
+           "run_dir", "e_ahead"]
 
 
 @dc.dataclass(frozen=True)
@@ -65,7 +65,9 @@ def finished(out_dir: Path) -> pd.DataFrame:
 
 def _append(out_dir: Path, row: dict) -> None:
     path = Path(out_dir) / "runs.csv"
-    pd.DataFrame([row], columns=COLUMNS).to_csv(path, mode="a", header=not path.is_file(),
+    # a campaign resumed from an older runs.csv keeps that file's columns
+    columns = list(pd.read_csv(path, nrows=0).columns) if path.is_file() else COLUMNS
+    pd.DataFrame([row], columns=columns).to_csv(path, mode="a", header=not path.is_file(),
                                                 index=False)
 
 
@@ -139,8 +141,9 @@ def _progress(total: int, initial: int, enabled: bool):
 
 def summarize(rows: pd.DataFrame) -> pd.DataFrame:
     """Per target speed, as L Table 1 in bulk: runs, success rate, median and worst e_xy of the
-    successful landings [cm], median tracking duration [s], mean measured target speed, and the
-    median and worst peak force on one leg of every run that touched down [N] (the structural
+    successful landings [cm], the median of their offset ahead of the platform's centre [cm]
+    (a lead or lag of the reference), median tracking duration [s], mean measured target speed,
+    and the median and worst peak force on one leg of every run that touched down [N] (the structural
     limit is the airframe's `max_leg_force`)."""
     def one(group: pd.DataFrame) -> pd.Series:
         ok = group[group["success"].astype(bool)]
@@ -150,6 +153,8 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
             "target_speed": group["target_speed"].mean(),
             "e_xy_median_cm": 100 * ok["e_xy"].median() if len(ok) else np.nan,
             "e_xy_worst_cm": 100 * ok["e_xy"].max() if len(ok) else np.nan,
+            "e_ahead_median_cm": 100 * ok["e_ahead"].median()
+            if len(ok) and "e_ahead" in ok else np.nan,
             "tracking_median_s": ok["tracking_duration"].median() if len(ok) else np.nan,
             "leg_force_median_n": forces.median() if len(forces) else np.nan,
             "leg_force_worst_n": forces.max() if len(forces) else np.nan})
@@ -168,12 +173,13 @@ def write_summary(out_dir: Path, rows: pd.DataFrame) -> pd.DataFrame:
 
 def summary_markdown(summary: pd.DataFrame) -> str:
     lines = ["| target speed [m/s] | runs | landed | success | e_xy median [cm] | e_xy worst [cm] "
-             "| tracking median [s] | peak leg force median / worst [N] |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| ahead median [cm] | tracking median [s] | peak leg force median / worst [N] |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for speed, r in summary.iterrows():
         lines.append(f"| {speed:.1f} ({r.target_speed:.2f} measured) | {r.runs:.0f} | "
                      f"{r.landed:.0f} | {100 * r.success_rate:.0f} % | {r.e_xy_median_cm:.1f} | "
-                     f"{r.e_xy_worst_cm:.1f} | {r.tracking_median_s:.2f} | "
+                     f"{r.e_xy_worst_cm:.1f} | {r.e_ahead_median_cm:+.1f} | "
+                     f"{r.tracking_median_s:.2f} | "
                      f"{r.leg_force_median_n:.0f} / {r.leg_force_worst_n:.0f} |")
     return "\n".join(lines) + "\n"
 
