@@ -19,7 +19,8 @@ from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from alight.diagrams.onboard.estimation import add_sampled_sensor, load_bank_params
+from alight.diagrams.onboard.estimation import load_bank_params
+from alight.systems.sensors.sampled import add_sampled_sensor
 from alight.systems.boundary import FC_ATTITUDE, GROUND_TRUTH
 from alight.systems.estimation.bank import EstimatorBank
 from alight.systems.sensors.optic_flow import OpticFlow, OpticFlowParams

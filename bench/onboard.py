@@ -5,7 +5,8 @@ replays them through the onboard diagram alone and prints what each component co
    simulated vehicle flies its landing with its own onboard stack (closed loop; `--duration` s or
    until the stack's stop condition, landed and settled), and every
    boundary output the stack reads is recorded as it changes: `imu`, `fc_attitude`,
-   `fc_status`, the forward RGB-D frames (`rgbd`) and the down-camera frames (`down_image`),
+   `fc_status`, `range`, the forward RGB-D frames (`rgbd`) and the down-camera frames
+   (`down_image`),
    plus `ground_truth` for scoring only. The recording lives outside the repository, under
    `$ALIGHT_CACHE` (default `~/.cache/alight`) `/onboard/<scenario hash>/`: frames one pickle
    each (a rendered 30 s landing is a few GB), the small streams in one file.
@@ -59,16 +60,16 @@ from alight.diagrams.running.simulation import simulate
 from alight.diagrams.scenario import dump_scenario, load_scenario
 from alight.diagrams.stacks import add_onboard
 from alight.systems import timing
-from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH,
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH, RANGE,
                                      STATE_ESTIMATE, TARGET_ESTIMATE, CameraFrame, ImuSamples)
 from alight.systems.timing import compute_timers
 
-FORMAT = 1          # of the recording folder; part of its hash
+FORMAT = 2          # of the recording folder; part of its hash (2: with `range`)
 SENSING = {"rendered": ["vehicle.down_camera.source: rendered",
                         "onboard.vio_camera.source: rendered"],
            "geometric": ["vehicle.down_camera.source: geometric",
                          "onboard.vio_camera.source: geometric"]}
-VECTORS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS}
+VECTORS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS, "range": RANGE}
 FRAMES = ("rgbd", "down_image")
 TRUTH_PERIOD = 0.01  # s, ground truth (scoring only)
 
@@ -85,7 +86,8 @@ def _key(value):
 
 
 class StreamRecorder(LeafSystem):
-    """Inputs `imu`, `rgbd`, `down_image` (abstract) and `fc_attitude`, `fc_status` (vectors),
+    """Inputs `imu`, `rgbd`, `down_image` (abstract) and `fc_attitude`, `fc_status`, `range`
+    (vectors),
     each recorded at every simulator step where its value changed, with the simulation time it
     appeared at: a per-step publish at the end of a step sees what the updates at the step's
     start made, so a change is stamped with the step's start (the previous step's end); frames are written to `folder/<stream>/<index>.pkl` as they come (`index`:
@@ -175,6 +177,10 @@ class Recording:
         self.duration = float(streams["duration"])
         self.times = streams["times"]
         self.imu = streams["imu"]
+        for name, layout in VECTORS.items():
+            if name not in streams:   # a recording from before the stream existed: never valid
+                streams[name] = layout.vector(valid=0.0)[None, :]
+                self.times[name] = np.zeros(1)
         self.vectors = {name: streams[name] for name in VECTORS}
         self.ground_truth = streams["ground_truth"]
 
@@ -192,7 +198,8 @@ def _index(times: np.ndarray, t: float) -> int:
 
 class RecordedVehicle(LeafSystem):
     """The vehicle boundary of a recording (DESIGN.md; the MAVLink vehicle's ports, no ground
-    truth): outputs `imu`, `fc_attitude`, `fc_status`, `rgbd`, `down_image`, each the recorded
+    truth): outputs `imu`, `fc_attitude`, `fc_status`, `range`, `rgbd`, `down_image`, each the
+    recorded
     value in force at the context time; input `fc_command` (open loop: nothing acts on it).
     `reader_seconds` is the CPU time spent loading frames (the replay's, not the stack's)."""
 

@@ -3,7 +3,8 @@
 A background reader (hw/endpoint.py) turns the autopilot's telemetry into thread-safe buffers
 that the MAVLink vehicle's ports read: IMU samples (HIGHRES_IMU or SCALED_IMU, each kept once, in
 the autopilot's time order), the attitude estimate (ATTITUDE_QUATERNION), armed state and PX4
-mode (HEARTBEAT), landed state (EXTENDED_SYS_STATE), command acknowledgements and status texts.
+mode (HEARTBEAT), landed state (EXTENDED_SYS_STATE), the downward rangefinder (DISTANCE_SENSOR),
+command acknowledgements and status texts.
 A keep-alive thread sends the companion heartbeat (1 Hz) and TIMESYNC requests; the autopilot's
 clock is mapped to ours from the TIMESYNC round trip with the smallest delay in a sliding window.
 Commands go out as COMMAND_LONG with acknowledgement, retries (confirmation counter) and a clear
@@ -49,6 +50,7 @@ class LinkParams:
     imu_rate: float = bounded(250.0, 1.0, 4000.0, "Hz")
     attitude_rate: float = bounded(100.0, 1.0, 1000.0, "Hz")
     status_rate: float = bounded(10.0, 0.2, 100.0, "Hz")
+    range_rate: float = bounded(50.0, 1.0, 1000.0, "Hz")   # DISTANCE_SENSOR (downward)
     imu_queue: int = bounded(4000, 10, 1000000)    # samples held until the IMU port takes them
 
 
@@ -85,6 +87,12 @@ class AutopilotState:
     q_WB: tuple = (1.0, 0.0, 0.0, 0.0)
     w_B: tuple = (0.0, 0.0, 0.0)
     attitude_valid: bool = False
+    # the downward DISTANCE_SENSOR (orientation PITCH_270): its time on the autopilot clock [s],
+    # distance [m], variance [m^2] and whether it lies within the sensor's range
+    range_t_fc: float = math.nan
+    range: float = math.nan
+    range_var: float = math.nan
+    range_valid: bool = False
 
     @property
     def armed(self) -> bool:
@@ -252,6 +260,23 @@ class MavlinkLink(MavlinkEndpoint):
             self._state = dc.replace(self._state, landed_state=message.landed_state)
         return True
 
+    def _on_distance_sensor(self, message, now) -> bool:
+        """The downward rangefinder (DISTANCE_SENSOR, cm); other orientations are not ours.
+        Out of the sensor's own [min, max] or of signal quality 1 ('invalid'): not valid.
+        Covariance in cm^2, UINT8_MAX unknown (then the sensor's 1 cm resolution)."""
+        if message.orientation != mavlink.MAV_SENSOR_ROTATION_PITCH_270:
+            return True
+        distance = message.current_distance * 1e-2
+        if not (math.isfinite(distance) and distance >= 0.0):
+            return False
+        valid = message.min_distance <= message.current_distance <= message.max_distance \
+            and getattr(message, "signal_quality", 0) != 1
+        var = message.covariance * 1e-4 if message.covariance != 255 else 1e-4
+        with self._state_lock:
+            self._state = dc.replace(self._state, range_t_fc=message.time_boot_ms * 1e-3,
+                                     range=distance, range_var=var, range_valid=bool(valid))
+        return True
+
     def _on_highres_imu(self, message, now) -> bool:
         if self.params.imu_message != "HIGHRES_IMU":
             return True  # one IMU stream only: two would interleave two clocks' samples
@@ -403,13 +428,15 @@ class MavlinkLink(MavlinkEndpoint):
         self.command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
 
     def request_message_rates(self) -> dict[str, str]:
-        """MAV_CMD_SET_MESSAGE_INTERVAL for the IMU, attitude and status streams; the answer per
+        """MAV_CMD_SET_MESSAGE_INTERVAL for the IMU, attitude, status and rangefinder streams; the
+        answer per
         message ("ok" or the refusal, which is logged, not raised: streams may come anyway)."""
         imu_id = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU if self.params.imu_message == "HIGHRES_IMU" \
             else mavlink.MAVLINK_MSG_ID_SCALED_IMU
         rates = {imu_id: self.params.imu_rate,
                  mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self.params.attitude_rate,
-                 mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.params.status_rate}
+                 mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.params.status_rate,
+                 mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: self.params.range_rate}
         answers = {}
         for message_id, rate in rates.items():
             name = mavlink.mavlink_map[message_id].msgname
@@ -502,6 +529,7 @@ _HANDLERS = {
     "EXTENDED_SYS_STATE": MavlinkLink._on_extended_sys_state,
     "HIGHRES_IMU": MavlinkLink._on_highres_imu,
     "SCALED_IMU": MavlinkLink._on_scaled_imu,
+    "DISTANCE_SENSOR": MavlinkLink._on_distance_sensor,
     "COMMAND_ACK": MavlinkLink._on_command_ack,
     "STATUSTEXT": MavlinkLink._on_statustext,
 }

@@ -4,6 +4,8 @@ over MAVLink (hw/link.py), plus the hardware-only `link_status` diagnostics.
 
 - `imu`: every IMU sample from the link once, with its own time mapped to the onboard clock;
 - `fc_attitude`, `fc_status`: the autopilot's estimate and state (PX4 mode, armed, landed);
+- `range`: the downward rangefinder's DISTANCE_SENSOR, stamped on the onboard clock (not valid
+  until one arrives: a vehicle without a rangefinder);
 - `fc_command`: checked as the simulated flight controller checks it (a refused command is not
   sent, the previous valid one holds, the refusal shows on `fc_status`), streamed as
   SET_ATTITUDE_TARGET every `command_period` while it is fresh. A command older than
@@ -35,7 +37,7 @@ from alight.hw.link import CommandDenied, LinkParams, LinkTimeout, MavlinkLink
 from alight.models import model_path
 from alight.systems.autopilot.commander import CommanderParams, check_command
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, NO_COMMAND_STAMP,
-                                     STATE_ESTIMATE, ActiveMode, CameraFrame, CommandMode,
+                                     RANGE, STATE_ESTIMATE, ActiveMode, CameraFrame, CommandMode,
                                      ImuSamples, Refusal, VectorLayout)
 from alight.systems.params import bounded, load_params
 
@@ -223,6 +225,7 @@ class MavlinkTelemetry(LeafSystem):
     """Input  `command_status` COMMAND_STATUS from the command sender
     Output `fc_attitude`    FC_ATTITUDE: the autopilot's estimate in W/B, stamped on our clock
     Output `fc_status`      FC_STATUS: armed, mode, link alive, last sent command, refusals, landed
+    Output `range`          RANGE: the last downward DISTANCE_SENSOR, stamped on our clock
     Output `link_status`    LINK_STATUS
     Sampled every `period` from the link into state."""
 
@@ -236,12 +239,13 @@ class MavlinkTelemetry(LeafSystem):
                            last_command_stamp=NO_COMMAND_STAMP, refused=0,
                            last_refusal=Refusal.NONE,
                            landed=1),
+            RANGE.pack(stamp=0.0, range=0.0, var=1.0, valid=0.0),
             np.zeros(LINK_STATUS.size)])
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         start = 0
         for name, size in (("fc_attitude", FC_ATTITUDE.size), ("fc_status", FC_STATUS.size),
-                           ("link_status", LINK_STATUS.size)):
+                           ("range", RANGE.size), ("link_status", LINK_STATUS.size)):
             self.DeclareVectorOutputPort(
                 name, size, lambda c, o, s=slice(start, start + size): o.SetFromVector(
                     c.get_discrete_state(self._xd).get_value()[s]),
@@ -258,6 +262,12 @@ class MavlinkTelemetry(LeafSystem):
         t_attitude = link.to_local(state.attitude_t_fc)
         if state.attitude_valid and math.isfinite(t_attitude):
             attitude = FC_ATTITUDE.pack(stamp=t_attitude, q_WB=state.q_WB, w_B=state.w_B)
+        start = FC_ATTITUDE.size + FC_STATUS.size
+        distance = x[start:start + RANGE.size]
+        t_range = link.to_local(state.range_t_fc)
+        if math.isfinite(t_range) and math.isfinite(state.range):
+            distance = RANGE.pack(stamp=t_range, range=state.range, var=state.range_var,
+                                  valid=float(state.range_valid))
         if not state.armed:
             mode = ActiveMode.DISARMED
         elif state.offboard:
@@ -289,7 +299,8 @@ class MavlinkTelemetry(LeafSystem):
             imu_out_of_order=link.imu_out_of_order, imu_overflow=link.imu_overflow,
             setpoints_sent=link.setpoints_sent, commands_denied=COMMAND_STATUS.get(sent, "denied"),
             px4_custom_mode=state.custom_mode, landed_state=state.landed_state)
-        discrete_state.set_value(self._xd, np.concatenate([attitude, status, diagnostics]))
+        discrete_state.set_value(self._xd, np.concatenate([attitude, status, distance,
+                                                           diagnostics]))
 
 
 def autopilot_time(link: MavlinkLink, t_local: float) -> float:
@@ -363,7 +374,8 @@ def make_mavlink_vehicle(link: MavlinkLink, params: MavlinkVehicleParams,
                          frames: FrameSubscriber | None = None,
                          cameras: dict[str, LeafSystem] | None = None) -> Diagram:
     """The MAVLink vehicle diagram on an open link. Inputs `fc_command`, `odometry`; outputs `imu`,
-    `fc_attitude`, `fc_status`, `rgbd`, `down_image` and the hardware-only `link_status`.
+    `fc_attitude`, `fc_status`, `range`, `rgbd`, `down_image` and the hardware-only
+    `link_status`.
     A camera port reads `cameras[name]` (a system with that one output, e.g. a real camera,
     hw/opencv_camera.py) if given, else the frame channel `frames`, else an empty frame."""
     builder = DiagramBuilder()
@@ -380,6 +392,7 @@ def make_mavlink_vehicle(link: MavlinkLink, params: MavlinkVehicleParams,
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
     builder.ExportOutput(telemetry.GetOutputPort("fc_attitude"), "fc_attitude")
     builder.ExportOutput(telemetry.GetOutputPort("fc_status"), "fc_status")
+    builder.ExportOutput(telemetry.GetOutputPort("range"), "range")
     cameras = cameras or {}
     unknown = set(cameras) - set(CAMERAS)
     if unknown:

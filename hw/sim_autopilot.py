@@ -4,7 +4,7 @@ companion side (`alight hil`, or any MAVLink client such as MAVSDK) flies it as 
 
 It speaks: HEARTBEAT (PX4 autopilot, hexarotor, PX4 custom modes), HIGHRES_IMU / SCALED_IMU (each
 IMU sample once, stamped with the simulation's clock), ATTITUDE_QUATERNION, ATTITUDE,
-EXTENDED_SYS_STATE, SYS_STATUS, AUTOPILOT_VERSION, TIMESYNC answers, COMMAND_ACK and STATUSTEXT;
+EXTENDED_SYS_STATE, SYS_STATUS, DISTANCE_SENSOR (the downward rangefinder), AUTOPILOT_VERSION, TIMESYNC answers, COMMAND_ACK and STATUSTEXT;
 it obeys SET_ATTITUDE_TARGET (attitude+thrust and rates+thrust), MAV_CMD_COMPONENT_ARM_DISARM,
 MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_LAND, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE and
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py; it answers a
@@ -60,7 +60,7 @@ from alight.hw.ground_station import GroundStationService, emulated_parameters
 from alight.hw.frames import b_to_frd, q_wb_to_nf, w_to_ned
 from alight.hw.link import MILLI_G
 from alight.models import model_path
-from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_ESTIMATE,
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, RANGE, STATE_ESTIMATE,
                                      ActiveMode, CameraFrame, ImuSamples)
 from alight.systems.autopilot.ev_fusion import LOCAL_POSITION
 from alight.systems.params import bounded, load_params
@@ -70,6 +70,7 @@ from alight.systems.sensors.mocap import MocapParams
 STREAMS = {
     "HIGHRES_IMU": 50.0, "SCALED_IMU": 0.0, "ATTITUDE_QUATERNION": 50.0, "ATTITUDE": 50.0,
     "EXTENDED_SYS_STATE": 5.0, "SYS_STATUS": 1.0, "LOCAL_POSITION_NED": 30.0, "ODOMETRY": 30.0,
+    "DISTANCE_SENSOR": 50.0,
 }
 _STREAM_IDS = {mavlink.mavlink_map[i].msgname: i for i in mavlink.mavlink_map
                if mavlink.mavlink_map[i].msgname in STREAMS}
@@ -100,6 +101,7 @@ class SimAutopilotParams:
     # the local position (sent only while valid, as PX4)
     local_position_ned_rate: float = bounded(STREAMS["LOCAL_POSITION_NED"], 0.0, 1000.0, "Hz")
     odometry_rate: float = bounded(STREAMS["ODOMETRY"], 0.0, 1000.0, "Hz")
+    distance_sensor_rate: float = bounded(STREAMS["DISTANCE_SENSOR"], 0.0, 1000.0, "Hz")
     # PX4 commander/position-control parameters of the rules (COM_OBL_RC_ACT, MPC_*)
     rules: Px4RulesParams = dc.field(default_factory=Px4RulesParams)
 
@@ -270,7 +272,8 @@ def _interval(rate: float) -> float | None:
 
 
 class AutopilotBridge(LeafSystem):
-    """Input  `imu`, `fc_attitude`, `fc_status`, `rgbd`, `down_image` from the simulated vehicle
+    """Input  `imu`, `fc_attitude`, `fc_status`, `range`, `rgbd`, `down_image` from the simulated
+           vehicle
     Input  `mocap` STATE_ESTIMATE of the world's mocap system (published on the frame channel)
     Output `fc_command` FC_COMMAND to the simulated vehicle
     Every `period`: handles what the links received (rules of hw/autopilot_rules.py), updates
@@ -281,16 +284,18 @@ class AutopilotBridge(LeafSystem):
     def __init__(self, endpoints: list[AutopilotEndpoint], params: SimAutopilotParams,
                  rules: AutopilotRules, command_period: float, imu_period: float,
                  frames: FramePublisher | None = None,
-                 ground_station: GroundStationService | None = None):
+                 ground_station: GroundStationService | None = None, max_range: float = 40.0):
         super().__init__()
         self._endpoint, self._params, self._rules, self._frames = endpoints[0], params, rules, \
             frames
+        self._max_range_cm = int(round(max_range * 100))  # the rangefinder's, DISTANCE_SENSOR
         self._links = [AutopilotLink(e, params.default_rates()) for e in endpoints]
         self._ground_station = ground_station
         self._command_period, self._imu_period = command_period, imu_period
         self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._status = self.DeclareVectorInputPort("fc_status", FC_STATUS.size)
+        self._range = self.DeclareVectorInputPort("range", RANGE.size)
         self._cameras = {name: self.DeclareAbstractInputPort(
             name, AbstractValue.Make(CameraFrame())) for name in ("rgbd", "down_image")}
         self._mocap = self.DeclareVectorInputPort("mocap", STATE_ESTIMATE.size)
@@ -439,7 +444,7 @@ class AutopilotBridge(LeafSystem):
         built = {}  # this tick's messages, built once for every link they are due on
         for link in self._links:
             for name in ("ATTITUDE_QUATERNION", "ATTITUDE", "EXTENDED_SYS_STATE", "SYS_STATUS",
-                         "LOCAL_POSITION_NED", "ODOMETRY"):
+                         "LOCAL_POSITION_NED", "ODOMETRY", "DISTANCE_SENSOR"):
                 if link.due(name, now):
                     if name not in built:
                         built[name] = self._stream_message(name, context)
@@ -455,6 +460,8 @@ class AutopilotBridge(LeafSystem):
         mav = self._endpoint.mav
         if name in ("LOCAL_POSITION_NED", "ODOMETRY"):
             return self._local_position_message(name, context)
+        if name == "DISTANCE_SENSOR":
+            return self._distance_sensor_message(context)
         if name == "EXTENDED_SYS_STATE":
             return mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED,
                                                  _landed_state(self._status.Eval(context)))
@@ -474,6 +481,22 @@ class AutopilotBridge(LeafSystem):
             return mav.attitude_quaternion_encode(time_ms, *q_NF, *w_F)
         rpy = RollPitchYaw(RotationMatrix(Quaternion(q_NF / np.linalg.norm(q_NF))))
         return mav.attitude_encode(time_ms, *rpy.vector(), *w_F)
+
+    def _distance_sensor_message(self, context):
+        """The rangefinder's last measurement as PX4 sends it: cm, downward (PITCH_270), its
+        range limits [min 1 cm, max_range]; out of range or too tilted: quality 1 (invalid).
+        None before the first measurement."""
+        distance = self._range.Eval(context)
+        stamp = RANGE.get(distance, "stamp")
+        if stamp <= 0.0:
+            return None
+        valid = RANGE.get(distance, "valid") > 0.5
+        centimetres = int(min(max(round(RANGE.get(distance, "range") * 100), 0), 65535))
+        covariance = int(min(round(RANGE.get(distance, "var") * 1e4), 254))
+        return self._endpoint.mav.distance_sensor_encode(
+            int(stamp * 1e3), 1, self._max_range_cm, centimetres,
+            mavlink.MAV_DISTANCE_SENSOR_LASER, 0, mavlink.MAV_SENSOR_ROTATION_PITCH_270,
+            covariance, signal_quality=100 if valid else 1)
 
     def _local_position_message(self, name: str, context):
         """PX4's vehicle_local_position as LOCAL_POSITION_NED or ODOMETRY (LOCAL_NED), only
@@ -565,8 +588,8 @@ def make_sim_autopilot(vehicle_config, endpoints: list[AutopilotEndpoint],
         endpoints[0].mav)
     bridge = builder.AddNamedSystem("autopilot_bridge", AutopilotBridge(
         endpoints, params, rules, vehicle_config.flight_controller.period,
-        vehicle_config.imu.period, frames, ground_station))
-    for name in ("imu", "fc_attitude", "fc_status", "rgbd", "down_image"):
+        vehicle_config.imu.period, frames, ground_station, vehicle_config.rangefinder.max_range))
+    for name in ("imu", "fc_attitude", "fc_status", "range", "rgbd", "down_image"):
         builder.Connect(vehicle.GetOutputPort(name), bridge.GetInputPort(name))
     builder.Connect(add_mocap(builder, vehicle.GetOutputPort("ground_truth"), mocap),
                     bridge.GetInputPort("mocap"))

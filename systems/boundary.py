@@ -112,6 +112,11 @@ FC_STATUS = VectorLayout("fc_status", [
     ("refused", 1), ("last_refusal", 1), ("landed", 1)])
 NO_COMMAND_STAMP = -1.0  # s: stamps are times of the simulation or the onboard clock, from 0
 
+# Output `range` (the downward rangefinder, M Sec. 3.1.2; on PX4 DISTANCE_SENSOR): stamp of the
+# measurement [s]; range: distance along -b3 to the first surface below (ground, car, platform)
+# [m]; var [m^2]; valid (0: none yet, out of range, too tilted, or no rangefinder fitted).
+RANGE = VectorLayout("range", [("stamp", 1), ("range", 1), ("var", 1), ("valid", 1)])
+
 # The vehicle's contacts (simulation only; alight.systems.sensors.contacts, DESIGN.md "Landing is
 # judged physically"), sampled every few plant steps: summed normal forces [N] of its legs on the
 # landing platform, of its legs on the ground, and of every other contact of the vehicle (its body
@@ -202,7 +207,7 @@ class CameraFrame:
         return (self.image is not None or self.keypoints is not None) and np.isfinite(self.stamp)
 
 
-VECTOR_OUTPUTS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS}
+VECTOR_OUTPUTS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS, "range": RANGE}
 ABSTRACT_OUTPUTS = {"imu": ImuSamples, "rgbd": CameraFrame, "down_image": CameraFrame}
 SIM_ONLY_OUTPUTS = {"ground_truth": GROUND_TRUTH}
 

@@ -49,7 +49,7 @@ def exported(landing_run, tmp_path_factory):
 
 def test_every_stream_is_a_json_channel_with_one_message_per_row(landing_run, exported):
     channels, messages = exported
-    assert len(landing_run.streams) == 16   # the landing's 14, the VIO's odometry and estimate
+    assert len(landing_run.streams) == 17   # the landing's 15, the VIO's odometry and estimate
     assert {"vio_odometry", "vio_estimate"} <= set(landing_run.streams)
     for stream in landing_run.streams:
         rows = landing_run[stream]

@@ -1,5 +1,6 @@
-"""The landing mission end to end in simulation (field scenario, geometric down camera, mocap
-odometry): a seeded landing succeeds and is judged by the physics; campaigns resume and give the
+"""The landing mission end to end in simulation (field scenario, its default sensing: geometric
+down camera, VIO): a seeded landing succeeds and is judged by the physics; a car swerving under
+the descent is caught by the rangefinder or failed by the physics; campaigns resume and give the
 same runs on a Dask cluster as on the local pool."""
 
 import numpy as np
@@ -14,7 +15,7 @@ from alight.diagrams.scenario import load_scenario
 from alight.diagrams.analysis.landing import score_landing
 from alight.diagrams.running.run_log import RunLog
 from alight.models import model_path
-from alight.systems.mission.landing import Mode
+from alight.systems.mission.landing import Mode, Reason
 from conftest import assert_landed
 
 SPEED = 2.0  # m/s
@@ -66,23 +67,50 @@ def test_landed_disarms_and_the_vehicle_rests_on_the_moving_platform(landing):
     assert np.linalg.norm(v_rel) < 0.3                            # and carries the vehicle
 
 
-@pytest.mark.mission
-def test_target_swerving_in_landing_phase_2_is_scored_failed_by_the_physics(landing, tmp_path):
-    """The seed-0 landing again, with the car pulled sharply aside (90 deg/s for 0.8 s) just after
-    Landing Phase 2 began (a scheduled pull draws no noise, so the run is the same until then): the
-    mission, blind that close, still reaches Landed; the physics fails the landing."""
-    _, run = landing
+def _swerve(run, after_p2: float, tmp_path):
+    """The seed-0 landing again with the car pulled sharply aside (90 deg/s for 0.8 s)
+    `after_p2` s after Landing Phase 2 began (a scheduled pull draws no noise, so the run is the
+    same until then); returns the run and its score."""
     p2 = next(t for t, mode, _ in mission_transitions(run) if mode == Mode.LANDING_P2)
     scenario = load_scenario("field", overrides=[f"target_motion.speed: {SPEED}",
-                                                 f"target_motion.pull_times: [{p2 + 0.1}]"])
+                                                 f"target_motion.pull_times: [{p2 + after_p2}]"])
     run = run_scenario(scenario, run_dir=tmp_path / "swerve")
-    modes = run["mission_status"]["mode"]
-    assert modes.iloc[-1] == Mode.LANDED
     impact = scenario.scoring.impact
-    score = score_landing(run, impact.vertical_speed, impact.horizontal_speed)
+    return run, score_landing(run, impact.vertical_speed, impact.horizontal_speed)
+
+
+@pytest.mark.mission
+def test_target_swerving_in_the_blind_descent_is_scored_failed_by_the_physics(landing, tmp_path):
+    """Pulled 0.5 s into Phase 2, the car swerves under the descent while the pattern is too
+    close to see and the platform's edge still under the rangefinder: the mission reaches Landed,
+    the physics fails the landing (194 N on a leg, e_xy 74 cm, measured)."""
+    run, score = _swerve(landing[1], 0.5, tmp_path)
+    assert run["mission_status"]["mode"].iloc[-1] == Mode.LANDED
     assert not score.success
     assert score.reason in ("slid off the platform", "touched the ground", "tipped over",
                             "not resting on the platform") or score.reason.startswith("impact")
+
+
+@pytest.mark.mission
+def test_a_descent_beside_the_swerving_car_goes_around_on_the_rangefinder_and_lands(landing,
+                                                                                   tmp_path):
+    """Pulled 0.1 s into Phase 2, the car leaves the descent's footprint: at the landed height
+    by the estimate the rangefinder reads the road, so the mission does not disarm there
+    (L's rule would have, 1.3 m above the road) but goes back to Follow (MISSED_PLATFORM),
+    climbs, catches the car again and lands on it."""
+    run, score = _swerve(landing[1], 0.1, tmp_path)
+    events = mission_transitions(run)
+    missed = [i for i, (_, _, reason) in enumerate(events) if reason == Reason.MISSED_PLATFORM]
+    assert len(missed) == 1 and events[missed[0]][1] == Mode.FOLLOW
+    assert events[missed[0] - 1][1] == Mode.LANDING_P2
+    fc = run["fc_status"]
+    airborne = (fc["time"] > 5.0) & (fc["time"] <= events[missed[0]][0] + 1.0)
+    assert fc["armed"][airborne].min() == 1.0                   # not disarmed over the road
+    assert events[-1][1:] == (Mode.LANDED, Reason.BELOW_LANDED_OFFSET)
+    assert score.success, score.row()
+    truth = run["ground_truth"]
+    flying = truth["time"] > 5.0
+    assert truth["legs_ground_force"][flying].max() == 0.0     # never touched the road
 
 
 # The field scenario made short: a take-off at 1 m/s to 3 m, 2 m beside the car's path, the car
@@ -98,12 +126,14 @@ def _rows(frame):
 
 @pytest.mark.mission
 def test_the_car_swerving_away_under_the_blind_descent_is_a_ground_touchdown(tmp_path):
-    """The short landing with the camera blind from Landing Phase 2 on (8.2 s) and the car
-    pulled aside then: the mission lands where the car would have been, on the ground, and the
-    contact says so."""
+    """The short landing with the camera blind from Landing Phase 2 on (8.2 s), the car
+    pulled aside then and the rangefinder out (no fresh range: L's rule on the estimate alone;
+    with it the mission goes around, above): the mission lands where the car would have been,
+    on the ground, and the contact says so."""
     scenario = load_scenario("field", overrides=[*SHORT, f"target_motion.speed: {SPEED}",
                                                  "target_motion.pull_times: [8.2]",
-                                                 "camera_blackouts: [[8.2, 20.0]]"])
+                                                 "camera_blackouts: [[8.2, 20.0]]",
+                                                 "vehicle.rangefinder.outages: [[0.0, 20.0]]"])
     run = run_scenario(scenario, run_dir=tmp_path / "away")
     assert run["mission_status"]["mode"].iloc[-1] == Mode.LANDED
     score = score_landing(run, scenario.scoring.impact.vertical_speed,

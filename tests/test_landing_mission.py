@@ -6,7 +6,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import VectorLogSink
 
-from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.boundary import RANGE, REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
 from alight.systems.mission.landing import (MISSION_STATUS, LandingMission, LandingMissionParams,
                                             Mode, Reason)
 from alight.systems.mission.reference_generator import filter_reference, low_pass_gain
@@ -66,8 +66,26 @@ class Scripted(LeafSystem):
             frame_counter=0.0))
 
 
-def fly(target, duration, vehicle=None, params=None, script=None):
-    """The mission flown against `script` (default Scripted(target, vehicle)) for `duration` s."""
+class ScriptedRange(LeafSystem):
+    """The downward rangefinder of the ideal vehicle (at the mission's reference): `reading(t, p)`
+    -> (distance [m], valid, age [s]) with p the vehicle's position."""
+
+    def __init__(self, reading):
+        super().__init__()
+        self._reading = reading
+        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self.DeclareVectorOutputPort("range", RANGE.size, self._range)
+
+    def _range(self, context, output):
+        t = context.get_time()
+        distance, valid, age = self._reading(t, REFERENCE.get(self._reference.Eval(context), "p"))
+        output.SetFromVector(RANGE.pack(stamp=t - age, range=distance, var=4e-4,
+                                        valid=float(valid)))
+
+
+def fly(target, duration, vehicle=None, params=None, script=None, rangefinder=None):
+    """The mission flown against `script` (default Scripted(target, vehicle)) for `duration` s,
+    with the `rangefinder` reading of ScriptedRange if given (else `range` unconnected)."""
     params = params or LandingMissionParams()
     builder = DiagramBuilder()
     mission = builder.AddSystem(LandingMission(params))
@@ -76,6 +94,10 @@ def fly(target, duration, vehicle=None, params=None, script=None):
     builder.Connect(script.GetOutputPort("state_estimate"), mission.GetInputPort("state_estimate"))
     builder.Connect(script.GetOutputPort("target_estimate"),
                     mission.GetInputPort("target_estimate"))
+    if rangefinder is not None:
+        ranged = builder.AddSystem(ScriptedRange(rangefinder))
+        builder.Connect(mission.GetOutputPort("reference"), ranged.GetInputPort("reference"))
+        builder.Connect(ranged.GetOutputPort("range"), mission.GetInputPort("range"))
     logs = {}
     for name, size in (("mission_status", MISSION_STATUS.size), ("reference", REFERENCE.size),
                        ("arm", 2)):

@@ -70,7 +70,7 @@ def fly(link, script, duration, params=None, safe_stop=None):
     builder.Connect(source.get_output_port(), vehicle.GetInputPort("fc_command"))
     logs = {}
     for name, size in (("fc_status", FC_STATUS.size), ("link_status", LINK_STATUS.size),
-                       ("fc_attitude", boundary.FC_ATTITUDE.size)):
+                       ("fc_attitude", boundary.FC_ATTITUDE.size), ("range", boundary.RANGE.size)):
         logs[name] = builder.AddSystem(VectorLogSink(size, 0.004))
         builder.Connect(vehicle.GetOutputPort(name), logs[name].get_input_port())
     imu = builder.AddSystem(ImuLogSink(0.01))
@@ -153,6 +153,47 @@ def test_every_imu_sample_crosses_once_with_its_mapped_time(fake, link):
     t_sent = np.array([link.clock.from_monotonic(sent[i][1]) for i in k])
     assert np.max(np.abs(imu["time"].to_numpy() - t_sent)) < 5e-3
     assert np.all(np.diff(imu["time"]) > 0)
+
+
+def test_the_downward_distance_sensor_is_the_range_port_stamped_on_our_clock(fake, link):
+    """DISTANCE_SENSOR (cm) facing down is `range` in m with its variance; a forward one is not
+    ours; a reading beyond the sensor's own maximum or of signal quality 1 is not valid."""
+    R = boundary.RANGE
+    sent = []
+
+    def stream():
+        for k in range(120):
+            t_fc = fake.fc_time()
+            down = 150 + k if k < 80 else 4100          # beyond max_distance 4000 from k = 80
+            fake.send(fake.mav.distance_sensor_encode(
+                int(t_fc * 1e3), 5, 4000, down, mavlink.MAV_DISTANCE_SENSOR_LASER, 0,
+                mavlink.MAV_SENSOR_ROTATION_PITCH_270, 4, signal_quality=100))
+            fake.send(fake.mav.distance_sensor_encode(   # forward-looking: another sensor
+                int(t_fc * 1e3), 5, 4000, 20, mavlink.MAV_DISTANCE_SENSOR_LASER, 1,
+                mavlink.MAV_SENSOR_ROTATION_NONE, 4, signal_quality=100))
+            sent.append((t_fc, time.monotonic(), down))
+            time.sleep(0.01)
+    sender = threading.Thread(target=stream)
+    sender.start()
+    out = fly(link, lambda t: command(t), 1.6)
+    sender.join()
+    log = out["range"]
+    data, t = log.data().T, log.sample_times()
+    valid = data[:, R.slice("valid")].ravel() > 0.5
+    distance = data[:, R.slice("range")].ravel()
+    seen = valid & (t > 0.2)
+    assert seen.sum() > 50
+    # every valid reading is one the downward sensor sent (the forward one never shows)
+    downward = {round(d * 1e-2, 6) for _, _, d in sent if d <= 4000}
+    assert {round(d, 6) for d in distance[seen]} <= downward
+    np.testing.assert_allclose(data[seen, R.slice("var")].ravel(), 4e-4)
+    # out of range at the end: the port says not valid
+    assert not valid[-1] and distance[-1] == pytest.approx(41.0)
+    # stamps: the sensor's time on the onboard clock, within 5 ms of when it was sent
+    stamp = data[seen, R.slice("stamp")].ravel()
+    by_distance = {round(d * 1e-2, 6): link.clock.from_monotonic(wall) for _, wall, d in sent}
+    expected = np.array([by_distance[round(d, 6)] for d in distance[seen]])
+    assert np.max(np.abs(stamp - expected)) < 5e-3
 
 
 def test_commands_stream_as_set_attitude_target_in_both_modes(fake, link):

@@ -55,8 +55,8 @@ def test_hover_command_writes_a_run_folder_and_a_replay(tmp_path, capsys):
     scenario = load_scenario(run.path / "scenario.yaml")     # the run folder pins its run
     assert scenario.vehicle.wind.mean_speed == pytest.approx(10 / 3.6)
     assert scenario.random_seed == 4 and scenario.mission.duration == 2.5
-    assert set(run.streams) == {"fc_command", "fc_status", "fc_attitude", "ground_truth", "imu",
-                                "timing"}
+    assert set(run.streams) == {"fc_command", "fc_status", "fc_attitude", "range", "ground_truth",
+                                "imu", "timing"}
     html = replay.read_text()
     assert html.startswith("<!DOCTYPE html>") or "<html" in html[:200].lower()
     # The scene geometry and the animation are embedded as base64 Meshcat commands.

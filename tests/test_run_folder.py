@@ -64,8 +64,8 @@ def test_every_stream_is_on_disk_within_a_flush_period_and_sinks_hold_one_period
     open_run_folder(tmp_path / "run", loggers, diagram, {"command": "test"})
     run = read_run(tmp_path / "run")
     assert not run.complete and run.metadata["command"] == "test"
-    assert set(run.streams) == {"fc_status", "fc_attitude", "ground_truth", "fc_command", "imu",
-                                "timing"}
+    assert set(run.streams) == {"fc_status", "fc_attitude", "range", "ground_truth", "fc_command",
+                                "imu", "timing"}
     probe = loggers.timers["probe"]
     recorded, expected_timing, previous_flush = [], [], -1.0
     for t in [0.35, 1.0, 1.42, 2.0, 2.99, 4.25, 6.0]:
@@ -102,7 +102,7 @@ def test_a_finished_folder_reads_as_parquet_and_holds_what_the_unfinished_one_he
     finished, unfinished = folders
     run = read_run(finished)
     assert run.complete and run.metadata["duration"] == 5.0 and run.metadata["command"] == "test"
-    assert sorted(p.suffix for p in finished.iterdir()) == [".json"] + [".parquet"] * 6
+    assert sorted(p.suffix for p in finished.iterdir()) == [".json"] + [".parquet"] * 7
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a finished run reads without a warning
         frames = {stream: run[stream] for stream in run.streams}

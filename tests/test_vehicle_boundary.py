@@ -14,7 +14,7 @@ def test_sim_vehicle_ports_match_design(vehicle_config):
     outputs = {dut.get_output_port(i).get_name(): dut.get_output_port(i)
                for i in range(dut.num_output_ports())}
     assert set(inputs) == {"fc_command", "odometry"}
-    assert set(outputs) == {"imu", "fc_attitude", "fc_status", "rgbd", "down_image",
+    assert set(outputs) == {"imu", "fc_attitude", "fc_status", "rgbd", "down_image", "range",
                             "ground_truth"}
     for name, layout in {**boundary.INPUTS}.items():
         assert inputs[name].get_data_type() == PortDataType.kVectorValued

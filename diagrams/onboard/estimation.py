@@ -11,10 +11,10 @@ Adding a simulated source kind is one entry here plus its adapter in
 import dataclasses as dc
 
 import numpy as np
-from pydrake.common import RandomDistribution
-from pydrake.systems.primitives import ConstantVectorSource, DiscreteTimeDelay, RandomSource
+from pydrake.systems.primitives import ConstantVectorSource
 
 from alight.diagrams.onboard.mocap import add_mocap
+from alight.systems.sensors.sampled import add_sampled_sensor
 from alight.models import model_path
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.estimation.bank import SENSOR_PARAMS, BankParams, EstimatorBank, check_bank
@@ -34,23 +34,6 @@ def load_bank_params(filename: str = "estimator_bank.yaml", data: str | None = N
     params = load_params(BankParams, path, data=data)
     check_bank(params, str(path) if path else "<yaml string>")
     return params
-
-
-def add_sampled_sensor(builder, name: str, sensor, latency: float, ground_truth_port):
-    """A `SampledSensor` with its noise source and latency; returns the delayed output port.
-    A consumer sampling it sees messages `latency` (rounded to periods, at least one) old."""
-    builder.AddNamedSystem(name, sensor)
-    noise = builder.AddNamedSystem(f"{name}_noise", RandomSource(
-        RandomDistribution.kGaussian, sensor.noise_size, sensor.period))
-    builder.Connect(noise.get_output_port(), sensor.GetInputPort("noise"))
-    builder.Connect(ground_truth_port, sensor.GetInputPort("ground_truth"))
-    steps = round(latency / sensor.period) - 1  # the sensor's own state holds one period
-    if steps <= 0:
-        return sensor.GetOutputPort("measurement")
-    delay = builder.AddNamedSystem(f"{name}_latency", DiscreteTimeDelay(
-        sensor.period, steps, sensor.layout.size))
-    builder.Connect(sensor.GetOutputPort("measurement"), delay.get_input_port())
-    return delay.get_output_port()
 
 
 def _sampled(system):

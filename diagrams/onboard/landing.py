@@ -109,6 +109,7 @@ def add_landing_onboard(builder: DiagramBuilder, vehicle, mission_params: Landin
     builder.Connect(ports.target_estimate, level.GetInputPort("target_estimate"))
     builder.Connect(loop.state_estimate_port, mission.GetInputPort("state_estimate"))
     builder.Connect(ports.target_estimate, mission.GetInputPort("target_estimate"))
+    builder.Connect(vehicle.GetOutputPort("range"), mission.GetInputPort("range"))
     loggers = add_mpc_logging(builder, loop, mission.GetOutputPort("reference"))
     add_mission_logging(builder, loggers, mission, ports.target_estimate, mission_params.period)
     return LandingOnboard(mission, loop, ports, loggers)

@@ -87,6 +87,7 @@ def add_landing_managed(builder: DiagramBuilder, vehicle, mission_params: Landin
     mission = builder.AddNamedSystem("mission", LandingMission(mission_params))
     builder.Connect(estimate, mission.GetInputPort("state_estimate"))
     builder.Connect(ports.target_estimate, mission.GetInputPort("target_estimate"))
+    builder.Connect(vehicle.GetOutputPort("range"), mission.GetInputPort("range"))
     requests = builder.AddNamedSystem("landing_requests", LandingRequests(
         mission_params, config.tracker_names, *LANDING_TRACKERS))
     builder.Connect(mission.GetOutputPort("mission_status"),

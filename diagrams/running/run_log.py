@@ -39,8 +39,8 @@ import pyarrow.parquet as pq
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Diagram, LeafSystem
 
-from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH, ImuSamples,
-                                     VectorLayout)
+from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, GROUND_TRUTH, RANGE,
+                                     ImuSamples, VectorLayout)
 from alight.systems.timing import ComputeTimer, compute_timers, timing_frame
 
 LOG = logging.getLogger("alight.run_log")
@@ -232,7 +232,8 @@ def add_run_logging(builder, vehicle, command_port=None, period: float = 0.01,
     """Logs the vehicle's vector outputs, its IMU and (if given) the command sent to it, with the
     writer that flushes every stream to the run folder every `flush_period` once it is open."""
     ports = {"fc_status": (vehicle.GetOutputPort("fc_status"), FC_STATUS),
-             "fc_attitude": (vehicle.GetOutputPort("fc_attitude"), FC_ATTITUDE)}
+             "fc_attitude": (vehicle.GetOutputPort("fc_attitude"), FC_ATTITUDE),
+             "range": (vehicle.GetOutputPort("range"), RANGE)}
     if vehicle.HasOutputPort("ground_truth"):
         ports["ground_truth"] = (vehicle.GetOutputPort("ground_truth"), GROUND_TRUTH)
     if command_port is not None:

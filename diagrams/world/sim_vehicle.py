@@ -16,6 +16,7 @@ from alight.diagrams.world.contacts import add_contacts
 from alight.diagrams.world.flight_controller import make_flight_controller
 from alight.diagrams.world.ground import add_ground
 from alight.diagrams.world.rgbd_camera import add_rgbd_camera, add_rgbd_scene
+from alight.systems.sensors.sampled import add_sampled_sensor
 from alight.diagrams.world.target import add_target_scene, add_target_systems, perceived_ground
 from alight.models import model_path
 from alight.systems.autopilot.config import FlightControllerParams
@@ -32,6 +33,7 @@ from alight.systems.sensors.down_camera import DownCameraParams
 from alight.systems.sensors.fc_estimate import FcEstimate, FcEstimateParams
 from alight.systems.sensors.ground_truth import GroundTruth
 from alight.systems.sensors.imu import Imu, ImuParams
+from alight.systems.sensors.rangefinder import Rangefinder, RangefinderParams
 from alight.systems.sensors.rgbd_camera import RgbdCameraParams
 from alight.systems.target.vehicle import TargetParams
 
@@ -57,6 +59,9 @@ class SimVehicleConfig:
     down_camera: DownCameraParams = dc.field(default_factory=DownCameraParams)  # source none: no camera
     target: TargetParams = dc.field(default_factory=TargetParams)  # profile none: no target
     rgbd_camera: RgbdCameraParams = dc.field(default_factory=RgbdCameraParams)  # the VIO camera
+    # the downward rangefinder on `range` (against the ground and the car; an outage window over
+    # the whole flight: none fitted)
+    rangefinder: RangefinderParams = param_file(RangefinderParams, "rangefinder.yaml")
     tether: TetherParams = dc.field(default_factory=TetherParams)  # enabled false: none
     motor_fault: MotorFaultParams = dc.field(default_factory=MotorFaultParams)  # loss 0: none
     link_losses: list[list[float]] = dc.field(default_factory=list)  # command link lost [s]
@@ -74,7 +79,8 @@ def check_rate_grid(config: SimVehicleConfig) -> None:
     periods = {"imu.period": config.imu.period,
                "flight_controller.period": config.flight_controller.period,
                "fc_estimate.period": config.fc_estimate.period,
-               "drag_period": config.drag_period, "contact_period": config.contact_period}
+               "drag_period": config.drag_period, "contact_period": config.contact_period,
+               "rangefinder.period": config.rangefinder.period}
     for key, period in periods.items():
         steps = period / config.time_step
         if period and abs(steps - round(steps)) > 1e-6:
@@ -90,7 +96,8 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
     vision); outputs `imu`, `fc_attitude`,
     `fc_status`, `rgbd` (the forward RGB-D camera of `config.rgbd_camera`, empty frames with source
     none), `down_image` (the downward camera of `config.down_camera`, empty frames with source
-    none) and the simulation-only `ground_truth` (with the target of `config.target`, if any).
+    none), `range` (the downward rangefinder of `config.rangefinder`) and the simulation-only
+    `ground_truth` (with the target of `config.target`, if any).
     `autopilot_outputs` also exports the flight controller's `local_position` (its fused
     estimate, never a boundary port: for the simulated PX4 of hw/sim_autopilot.py).
     Seed it with `Diagram.SetRandomContext`. Its rates must lie on the plant's step
@@ -214,6 +221,10 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
     builder.ExportOutput(add_rgbd_camera(builder, plant, scene_graph, config.rgbd_camera, body),
                          "rgbd")
     builder.ExportOutput(down_image, "down_image")
+    rangefinder = dc.replace(config.rangefinder, target_model=config.target.model)  # the car's
+    builder.ExportOutput(add_sampled_sensor(
+        builder, "rangefinder", Rangefinder(rangefinder), rangefinder.latency,
+        truth.GetOutputPort("ground_truth")), "range")
     builder.ExportOutput(truth.GetOutputPort("ground_truth"), "ground_truth")
     if autopilot_outputs:
         builder.ExportOutput(fc.GetOutputPort("local_position"), "local_position")

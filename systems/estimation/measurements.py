@@ -19,7 +19,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from alight.systems.boundary import FC_ATTITUDE, STATE_ESTIMATE, VectorLayout
+from alight.systems.boundary import FC_ATTITUDE, RANGE, STATE_ESTIMATE, VectorLayout
 from alight.systems.estimation.heading import heading_rate
 from alight.systems.rotations import heading, rotation_matrix
 
@@ -28,8 +28,6 @@ POSITION_FIX = VectorLayout("position_fix", [("stamp", 1), ("p", 3), ("var_p", 3
 # v_H: horizontal velocity in the heading frame H [m/s]; var_v [(m/s)^2].
 VELOCITY_FIX = VectorLayout("velocity_fix", [("stamp", 1), ("v_H", 2), ("var_v", 2),
                                              ("valid", 1)])
-# range: distance along -b3 to the ground [m]; var [m^2].
-RANGE = VectorLayout("range", [("stamp", 1), ("range", 1), ("var", 1), ("valid", 1)])
 
 AXES = {"x": 0, "y": 1, "z": 2}
 

@@ -35,8 +35,9 @@ velocity noise density; the position-velocity cross-covariance is not in the est
   pursuing);
   k sigma_xy(t_go) over `miss_limit`: Follow (abort). Height above the target under
   `landing_p2_offset`: Landing Phase 2 if the predicted miss is under `miss_limit`, else Follow.
-- Landing Phase 2: descending at `descending_p2`; no timeout (it cannot be cancelled). Height
-  above the target under `landed_offset`: Landed.
+- Landing Phase 2: descending at `descending_p2`; no timeout (the paper's cannot be cancelled;
+  here only a miss the rangefinder sees, below). Height above the target under `landed_offset`:
+  Landed (confirmed by the rangefinder).
 - Landed: disarm.
 
 Beyond the paper (its field tests end the flight by hand; a vehicle must not hover at the waypoint
@@ -47,17 +48,26 @@ until its battery dies):
   to the ground, Landed when the estimate is within `home_touchdown` of the take-off height and
   slower than `home_touchdown` per s vertically. A detection while Returning resumes Follow;
   Landing Home is not cancelled.
+- Touchdown confirmed by the downward rangefinder (`range`), the extra sensor L Sec. 8 names
+  against unsuccessful landing attempts: with a fresh valid range (younger than `range_timeout`)
+  Landed needs the estimated height above the target and the range both under `touchdown_range`
+  and one of them under `landed_offset`; an estimate at the landed height over a range beyond
+  `touchdown_range` is a vehicle beside the car (it disarmed 1.3 m above the road in a 5 m/s
+  campaign, VIO): Follow, climbing back (reason MISSED_PLATFORM). Without a fresh range (none
+  fitted, out of range, tilted), the paper's rule on the estimate alone.
 
 Every transition is counted and published with its time and reason on `mission_status`.
 Positions are those of the state estimate's frame E, in which the target estimate is expressed.
 """
 import dataclasses as dc
 import enum
+import math
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE, VectorLayout
+from alight.systems.boundary import (RANGE, REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE,
+                                     VectorLayout)
 from alight.systems.mission.reference_generator import filter_reference
 from alight.systems.params import bounded
 
@@ -94,6 +104,10 @@ class LandingMissionParams:
     # then Waypoint (0: the paper's return as soon as it is lost)
     pursuit_time: float = bounded(3.0, 0.0, 60.0, "s")
     home_touchdown: float = bounded(0.1, 0.01, 1.0, "m")         # on the ground at home within
+    # the rangefinder's confirmation of Landed (module text): both readings under this [m] (the
+    # landed offset plus the range's lag and noise at 1.8 m/s); 0: the paper's rule alone
+    touchdown_range: float = bounded(0.65, 0.0, 50.0, "m")
+    range_timeout: float = bounded(0.2, 0.0, 5.0, "s")           # an older range is not used
 
 
 def horizontal_sigma(target: np.ndarray, t_ahead: float, velocity_noise: float) -> float:
@@ -140,6 +154,8 @@ class Reason(enum.IntEnum):
     SEARCH_TIMEOUT = 9        # Waypoint -> Returning: no detection for search_timeout
     OVER_HOME = 10            # Returning -> Landing Home
     ON_THE_GROUND = 11        # Landing Home -> Landed
+    MISSED_PLATFORM = 12      # Landing Phase 2 -> Follow: at the landed height by the estimate,
+                              # the rangefinder sees no platform under the vehicle
 
 
 # Output `mission_status`: mode (Mode); reason (Reason) and time [s] of the last transition; the
@@ -160,7 +176,8 @@ _STATE = VectorLayout("landing_mission_state", [
 
 
 class LandingMission(LeafSystem):
-    """Inputs  `state_estimate` STATE_ESTIMATE; `target_estimate` TARGET_ESTIMATE
+    """Inputs  `state_estimate` STATE_ESTIMATE; `target_estimate` TARGET_ESTIMATE; `range` RANGE
+            (the vehicle's downward rangefinder; unconnected: the paper's touchdown rule)
     Outputs `reference` REFERENCE (position, velocity, heading) for the MPC; `arm` (2: arm request,
             thrust enable) for the arm gate; `mission_status` MISSION_STATUS
     """
@@ -170,6 +187,7 @@ class LandingMission(LeafSystem):
         self._p = params
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
+        self._range = self.DeclareVectorInputPort("range", RANGE.size)
         initial = np.zeros(_STATE.size)
         initial[_STATE.slice("first_detection")] = np.nan
         initial[_STATE.slice("last_detection")] = np.nan
@@ -226,6 +244,30 @@ class LandingMission(LeafSystem):
         return self._detected(now, target) or (
             self._usable(target)
             and p.sigma_k * horizontal_sigma(target, 0.0, 0.0) <= p.lost_radius)
+
+    def _fresh_range(self, context, now: float) -> float | None:
+        """The rangefinder's distance [m] if a valid one is younger than `range_timeout` (None:
+        unconnected, stale, invalid or confirmation off)."""
+        if self._p.touchdown_range <= 0.0 or not self._range.HasValue(context):
+            return None
+        reading = self._range.Eval(context)
+        distance = float(RANGE.get(reading, "range"))
+        fresh = now - RANGE.get(reading, "stamp") <= self._p.range_timeout
+        return distance if RANGE.get(reading, "valid") > 0.5 and fresh and \
+            math.isfinite(distance) else None
+
+    def _touchdown(self, height: float, distance: float | None) -> Reason | None:
+        """Landed (BELOW_LANDED_OFFSET), a miss (MISSED_PLATFORM) or neither yet (None), from
+        the estimated height above the target and the rangefinder's distance (module text)."""
+        p = self._p
+        if distance is None:
+            return Reason.BELOW_LANDED_OFFSET if height <= p.landed_offset else None
+        if max(height, distance) <= p.touchdown_range and \
+                min(height, distance) <= p.landed_offset:
+            return Reason.BELOW_LANDED_OFFSET
+        if height <= p.landed_offset:   # the estimate is down, the range sees no platform
+            return Reason.MISSED_PLATFORM
+        return None
 
     def _update(self, context, discrete_state):
         p = self._p
@@ -360,7 +402,14 @@ class LandingMission(LeafSystem):
                 elif height <= p.landing_p2_offset:
                     go(Mode.LANDING_P2, Reason.BELOW_P2_OFFSET)
         elif mode == Mode.LANDING_P2:
-            follow_target(p.descending_p2)  # no timeout: lost close to the target, L Sec. 6.4
-            if p_B[2] - p_T[2] <= p.landed_offset:
-                go(Mode.LANDED, Reason.BELOW_LANDED_OFFSET)
+            # no timeout: lost close to the target, L Sec. 6.4; only a miss seen by the
+            # rangefinder climbs back to Follow's height
+            touchdown = self._touchdown(height, self._fresh_range(context, now))
+            if touchdown == Reason.MISSED_PLATFORM:
+                go(Mode.FOLLOW, touchdown)
+                follow_target(0.0)
+            else:
+                follow_target(p.descending_p2)
+                if touchdown == Reason.BELOW_LANDED_OFFSET:
+                    go(Mode.LANDED, touchdown)
         discrete_state.set_value(self._xd, x)

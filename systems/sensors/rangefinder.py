@@ -7,8 +7,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from alight.systems.boundary import GROUND_TRUTH
-from alight.systems.estimation.measurements import RANGE
+from alight.systems.boundary import GROUND_TRUTH, RANGE
 from alight.systems.params import bounded
 from alight.systems.rotations import rotation_matrix
 from alight.systems.sensors.sampled import SampledSensor, check_windows, in_windows

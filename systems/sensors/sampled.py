@@ -1,9 +1,12 @@
 """A sampled sensor model on the simulation side (M Sec. 3.1.2 sources): reads `ground_truth`
 and unit Gaussian noise every `period` and holds its message in discrete state; latency is a
-Drake `DiscreteTimeDelay` added by `diagrams/estimation.py`. Subclasses give `measure`.
+Drake `DiscreteTimeDelay`. Subclasses give `measure`; `add_sampled_sensor` adds one with its
+noise and latency to a diagram (the vehicle's rangefinder, the estimator bank's sources).
 """
 import numpy as np
+from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
+from pydrake.systems.primitives import DiscreteTimeDelay, RandomSource
 
 from alight.systems.boundary import GROUND_TRUTH, VectorLayout
 from alight.systems.params import ConfigError
@@ -48,3 +51,20 @@ def check_windows(windows: list[list[float]], key: str) -> None:
         if len(window) != 2 or not window[0] < window[1]:
             raise ConfigError(f"key '{key}' = {windows!r}: each window is [start, end] with "
                               f"start < end [s]")
+
+
+def add_sampled_sensor(builder, name: str, sensor, latency: float, ground_truth_port):
+    """A `SampledSensor` with its noise source and latency; returns the delayed output port.
+    A consumer sampling it sees messages `latency` (rounded to periods, at least one) old."""
+    builder.AddNamedSystem(name, sensor)
+    noise = builder.AddNamedSystem(f"{name}_noise", RandomSource(
+        RandomDistribution.kGaussian, sensor.noise_size, sensor.period))
+    builder.Connect(noise.get_output_port(), sensor.GetInputPort("noise"))
+    builder.Connect(ground_truth_port, sensor.GetInputPort("ground_truth"))
+    steps = round(latency / sensor.period) - 1  # the sensor's own state holds one period
+    if steps <= 0:
+        return sensor.GetOutputPort("measurement")
+    delay = builder.AddNamedSystem(f"{name}_latency", DiscreteTimeDelay(
+        sensor.period, steps, sensor.layout.size))
+    builder.Connect(sensor.GetOutputPort("measurement"), delay.get_input_port())
+    return delay.get_output_port()
