@@ -87,6 +87,15 @@ def fly(link, script, duration, params=None, safe_stop=None):
     return out
 
 
+def fly_while_sending(link, stream, duration: float = 1.6):
+    """`fly` idle commands while `stream()` sends from the scripted autopilot on a thread."""
+    sender = threading.Thread(target=stream)
+    sender.start()
+    out = fly(link, lambda t: command(t), duration)
+    sender.join()
+    return out
+
+
 def status_field(log, field):
     return log.data()[FC_STATUS.slice(field)].ravel()
 
@@ -134,10 +143,7 @@ def test_every_imu_sample_crosses_once_with_its_mapped_time(fake, link):
             if k == 121:
                 fake.send(late)
             time.sleep(0.005)
-    sender = threading.Thread(target=stream)
-    sender.start()
-    out = fly(link, lambda t: command(t), 1.6)
-    sender.join()
+    out = fly_while_sending(link, stream)
     imu = out["imu"]
     k = np.round(imu["accel_x"].to_numpy()).astype(int)
     # Every sample once, in order; the duplicate and the late one are dropped and counted.
@@ -173,10 +179,7 @@ def test_the_downward_distance_sensor_is_the_range_port_stamped_on_our_clock(fak
                 mavlink.MAV_SENSOR_ROTATION_NONE, 4, signal_quality=100))
             sent.append((t_fc, time.monotonic(), down))
             time.sleep(0.01)
-    sender = threading.Thread(target=stream)
-    sender.start()
-    out = fly(link, lambda t: command(t), 1.6)
-    sender.join()
+    out = fly_while_sending(link, stream)
     log = out["range"]
     data, t = log.data().T, log.sample_times()
     valid = data[:, R.slice("valid")].ravel() > 0.5
