@@ -221,6 +221,12 @@ class MavlinkCommandSender(LeafSystem):
             self._worker.join(timeout)
 
 
+# MavlinkTelemetry's discrete state: its outputs, one after the other.
+_TELEMETRY = VectorLayout("mavlink_telemetry", [
+    ("fc_attitude", FC_ATTITUDE.size), ("fc_status", FC_STATUS.size), ("range", RANGE.size),
+    ("link_status", LINK_STATUS.size)])
+
+
 class MavlinkTelemetry(LeafSystem):
     """Input  `command_status` COMMAND_STATUS from the command sender
     Output `fc_attitude`    FC_ATTITUDE: the autopilot's estimate in W/B, stamped on our clock
@@ -233,24 +239,20 @@ class MavlinkTelemetry(LeafSystem):
         super().__init__()
         self._link = link
         self._command_status = self.DeclareVectorInputPort("command_status", COMMAND_STATUS.size)
-        initial = np.concatenate([
-            FC_ATTITUDE.pack(stamp=0.0, q_WB=[1, 0, 0, 0], w_B=np.zeros(3)),
-            FC_STATUS.pack(stamp=0.0, armed=0, mode=ActiveMode.DISARMED, link_alive=0,
-                           last_command_stamp=NO_COMMAND_STAMP, refused=0,
-                           last_refusal=Refusal.NONE,
-                           landed=1),
-            RANGE.pack(stamp=0.0, range=0.0, var=1.0, valid=0.0),
-            np.zeros(LINK_STATUS.size)])
+        initial = _TELEMETRY.pack(
+            fc_attitude=FC_ATTITUDE.pack(stamp=0.0, q_WB=[1, 0, 0, 0], w_B=np.zeros(3)),
+            fc_status=FC_STATUS.pack(stamp=0.0, armed=0, mode=ActiveMode.DISARMED, link_alive=0,
+                                     last_command_stamp=NO_COMMAND_STAMP, refused=0,
+                                     last_refusal=Refusal.NONE, landed=1),
+            range=RANGE.pack(stamp=0.0, range=0.0, var=1.0, valid=0.0),
+            link_status=np.zeros(LINK_STATUS.size))
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        start = 0
-        for name, size in (("fc_attitude", FC_ATTITUDE.size), ("fc_status", FC_STATUS.size),
-                           ("range", RANGE.size), ("link_status", LINK_STATUS.size)):
+        for name, size in _TELEMETRY.fields:
             self.DeclareVectorOutputPort(
-                name, size, lambda c, o, s=slice(start, start + size): o.SetFromVector(
+                name, size, lambda c, o, s=_TELEMETRY.slice(name): o.SetFromVector(
                     c.get_discrete_state(self._xd).get_value()[s]),
                 prerequisites_of_calc={self.xd_ticket()})
-            start += size
 
     def _update(self, context, discrete_state):
         x = context.get_discrete_state(self._xd).get_value().copy()
@@ -258,12 +260,11 @@ class MavlinkTelemetry(LeafSystem):
         link = self._link
         state = link.state()
         sent = self._command_status.Eval(context)
-        attitude = x[:FC_ATTITUDE.size]
+        attitude = _TELEMETRY.get(x, "fc_attitude")
         t_attitude = link.to_local(state.attitude_t_fc)
         if state.attitude_valid and math.isfinite(t_attitude):
             attitude = FC_ATTITUDE.pack(stamp=t_attitude, q_WB=state.q_WB, w_B=state.w_B)
-        start = FC_ATTITUDE.size + FC_STATUS.size
-        distance = x[start:start + RANGE.size]
+        distance = _TELEMETRY.get(x, "range")
         t_range = link.to_local(state.range_t_fc)
         if math.isfinite(t_range) and math.isfinite(state.range):
             distance = RANGE.pack(stamp=t_range, range=state.range, var=state.range_var,
@@ -299,8 +300,8 @@ class MavlinkTelemetry(LeafSystem):
             imu_out_of_order=link.imu_out_of_order, imu_overflow=link.imu_overflow,
             setpoints_sent=link.setpoints_sent, commands_denied=COMMAND_STATUS.get(sent, "denied"),
             px4_custom_mode=state.custom_mode, landed_state=state.landed_state)
-        discrete_state.set_value(self._xd, np.concatenate([attitude, status, distance,
-                                                           diagnostics]))
+        discrete_state.set_value(self._xd, _TELEMETRY.pack(
+            fc_attitude=attitude, fc_status=status, range=distance, link_status=diagnostics))
 
 
 def autopilot_time(link: MavlinkLink, t_local: float) -> float:

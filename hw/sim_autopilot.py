@@ -4,7 +4,8 @@ companion side (`alight hil`, or any MAVLink client such as MAVSDK) flies it as 
 
 It speaks: HEARTBEAT (PX4 autopilot, hexarotor, PX4 custom modes), HIGHRES_IMU / SCALED_IMU (each
 IMU sample once, stamped with the simulation's clock), ATTITUDE_QUATERNION, ATTITUDE,
-EXTENDED_SYS_STATE, SYS_STATUS, DISTANCE_SENSOR (the downward rangefinder), AUTOPILOT_VERSION, TIMESYNC answers, COMMAND_ACK and STATUSTEXT;
+EXTENDED_SYS_STATE, SYS_STATUS, DISTANCE_SENSOR (the downward rangefinder), AUTOPILOT_VERSION,
+TIMESYNC answers, COMMAND_ACK and STATUSTEXT;
 it obeys SET_ATTITUDE_TARGET (attitude+thrust and rates+thrust), MAV_CMD_COMPONENT_ARM_DISARM,
 MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_LAND, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE and
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, with the PX4 rules of hw/autopilot_rules.py; it answers a

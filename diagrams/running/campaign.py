@@ -143,8 +143,8 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
     """Per target speed, as L Table 1 in bulk: runs, success rate, median and worst e_xy of the
     successful landings [cm], the median of their offset ahead of the platform's centre [cm]
     (a lead or lag of the reference), median tracking duration [s], mean measured target speed,
-    and the median and worst peak force on one leg of every run that touched down [N] (the structural
-    limit is the airframe's `max_leg_force`)."""
+    and the median and worst peak force on one leg of every run that touched down [N] (the
+    structural limit is the airframe's `max_leg_force`)."""
     def one(group: pd.DataFrame) -> pd.Series:
         ok = group[group["success"].astype(bool)]
         forces = group["peak_leg_force"].dropna()
