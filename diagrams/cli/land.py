@@ -46,7 +46,8 @@ def run(args) -> int:
     if scenario.onboard.stack == "landing_managed":
         print(f"  control manager ({scenario.onboard.controller}): tracker " + ", ".join(
             f"{name} at {at:.2f} s" for at, name in tracker_switches(run)))
-    print(f"{scenario.name} scenario, {scenario.vehicle.down_camera.source} camera, "
+    cameras = scenario.vehicle.down_camera.source, scenario.vehicle.rgbd_camera.source
+    print(f"{scenario.name} scenario, {' / '.join(cameras)} down / RGB-D camera, "
           f"{scenario.onboard.estimator} odometry, {scenario.onboard.stack} stack, seed "
           f"{scenario.random_seed}:")
     print("  " + score.row())

@@ -18,14 +18,16 @@ class Flag:
     metavar: str | None = None
     choices: tuple | None = None
     to_value: Callable = lambda value: value    # the flag's unit -> the key's
+    also: tuple[str, ...] = ()                   # further keys set to the same value
 
     def add(self, parser: argparse.ArgumentParser) -> None:
+        keys = ", ".join((self.key, *self.also))
         parser.add_argument(self.flag, type=self.type, metavar=self.metavar,
-                            choices=self.choices, help=f"{self.help} (sets {self.key})")
+                            choices=self.choices, help=f"{self.help} (sets {keys})")
 
-    def override(self, value) -> str:
-        return yaml.safe_dump({self.key: self.to_value(value)}, default_flow_style=True).strip()[
-            1:-1]
+    def overrides(self, value) -> list[str]:
+        return [yaml.safe_dump({key: self.to_value(value)}, default_flow_style=True).strip()[1:-1]
+                for key in (self.key, *self.also)]
 
 
 LANDING_STACKS = {"direct": "landing", "managed": "landing_managed"}
@@ -39,8 +41,10 @@ FLAGS = {flag.flag.lstrip("-").replace("-", "_"): flag for flag in (
          "direction the wind blows toward, degrees from x_W, counter-clockwise", float, "DEG"),
     Flag("--gusts", "vehicle.wind.gust_std", "gust standard deviation in m/s (horizontal)",
          float, "M_S"),
-    Flag("--camera", "vehicle.down_camera.source", "down camera source", str,
-         choices=("geometric", "rendered")),
+    Flag("--camera", "vehicle.down_camera.source", "camera images: the sensor models "
+         "(geometric) or Drake-rendered images through the image pipelines, for the down camera "
+         "and the forward RGB-D camera alike (rendered: the acceptance mode)", str,
+         choices=("geometric", "rendered"), also=("vehicle.rgbd_camera.source",)),
     Flag("--rgbd-camera", "vehicle.rgbd_camera", "forward RGB-D camera YAML (a path, or a file "
          "name in models/; its source geometric or rendered)", str, "FILE.yaml"),
     Flag("--estimator", "onboard.estimator", "odometry: mocap, vio (L Sec. 5.1, the forward "
@@ -86,8 +90,8 @@ def add_common(parser: argparse.ArgumentParser, scenario: str = "waypoints",
 
 def scenario_overrides(args, extra=()) -> list[str]:
     """The command line's overrides: its flags, `extra`, the seed, then every --set."""
-    overrides = [FLAGS[name].override(getattr(args, name)) for name in args.scenario_flags
-                 if getattr(args, name) is not None]
+    overrides = [override for name in args.scenario_flags if getattr(args, name) is not None
+                 for override in FLAGS[name].overrides(getattr(args, name))]
     if getattr(args, "seed", None) is not None:
         overrides.append(f"random_seed: {args.seed}")
     return [*overrides, *extra, *args.set]

@@ -50,11 +50,13 @@ def run_job(job: CampaignJob) -> dict:
 
 def campaign_jobs(out_dir: Path, scenario: str, speeds, runs: int, seed: int = 0,
                   overrides=()) -> list[CampaignJob]:
-    """`runs` seeds from `seed` per target speed (`target_motion.speed`), each with `overrides`."""
+    """`runs` seeds from `seed` per target speed (`target_motion.speed`), each with `overrides`;
+    seed by seed (every speed of one seed, then the next), so that a campaign stopped part way has
+    about as many runs at each speed."""
     return [CampaignJob(str(scenario), (*overrides, f"target_motion.speed: {float(v)}"),
                         seed + i, float(v),
                         str(Path(out_dir) / "runs" / f"v{float(v):.1f}_s{seed + i}"))
-            for v in speeds for i in range(runs)]
+            for i in range(runs) for v in speeds]
 
 
 def finished(out_dir: Path) -> pd.DataFrame:
