@@ -16,7 +16,7 @@ from alight.diagrams.analysis.landing import score_landing
 from alight.diagrams.running.run_log import RunLog
 from alight.models import model_path
 from alight.systems.mission.landing import Mode, Reason
-from conftest import assert_landed
+from conftest import SHORT_LANDING, assert_landed
 
 SPEED = 2.0  # m/s
 
@@ -113,11 +113,7 @@ def test_a_descent_beside_the_swerving_car_goes_around_on_the_rangefinder_and_la
     assert truth["legs_ground_force"][flying].max() == 0.0     # never touched the road
 
 
-# The field scenario made short: a take-off at 1 m/s to 3 m, 2 m beside the car's path, the car
-# passing under the waypoint 7 s after the start; it lands 8-9 s after the start (seeds 0, 1).
-SHORT = ("mission.takeoff_height: 3.0", "mission.waypoint: [0.0, 0.0, 3.0]",
-         "mission.takeoff_velocity: 1.0", "target_motion.approach_time: 7.0",
-         "vehicle.initial_position: [-2.0, 0.0]", "simulator.max_duration: 20.0")
+SHORT = SHORT_LANDING
 
 
 def _rows(frame):
