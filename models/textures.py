@@ -77,6 +77,23 @@ def rgbd_ground_texture(seed: int = 11) -> np.ndarray:
     return np.clip(image, 0, 255).astype(np.uint8)
 
 
+def field_ground_texture(seed: int = 13) -> np.ndarray:
+    """The ground tile of a scene where both cameras render (BGR uint8, 2x the target ground's
+    pixels, deterministic): the target ground (its asphalt, grass, lane marks and look-alikes)
+    with the VIO ground's grain (1.6 and 6 cm) on top, so the forward camera finds corners
+    within its depth range where the down camera finds the landing field."""
+    rng = np.random.default_rng(seed)
+    n = 2 * GROUND_PIXELS
+    base = cv2.resize(ground_texture(), (n, n), interpolation=cv2.INTER_LINEAR).astype(float)
+
+    def layer(sigma):
+        noise = _periodic_blur(rng.normal(0, 1, (n, n)), sigma)
+        return noise / noise.std()
+
+    grain = 16 * layer(4) + 16 * layer(1)
+    return np.clip(base + grain[..., None], 0, 255).astype(np.uint8)
+
+
 def _periodic_blur(noise: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur with wrap-around (the tile repeats seamlessly)."""
     f = np.fft.fftfreq(noise.shape[0])
@@ -180,10 +197,12 @@ def generated_files() -> dict[str, bytes]:
         .tobytes()
     files["target_ground.png"] = cv2.imencode(".png", ground_texture())[1].tobytes()
     files["rgbd_ground.png"] = cv2.imencode(".png", rgbd_ground_texture())[1].tobytes()
+    files["field_ground.png"] = cv2.imencode(".png", field_ground_texture())[1].tobytes()
     tiles = int(round(GROUND_EXTENT / GROUND_TILE))
     rgbd_tiles = int(round(RGBD_GROUND_EXTENT / RGBD_GROUND_TILE))
     for name, half_side, n in (("target_pattern", pattern.params.side / 2, 1),
                                ("target_ground", tiles * GROUND_TILE / 2, tiles),
+                               ("field_ground", tiles * GROUND_TILE / 2, tiles),
                                ("rgbd_ground", rgbd_tiles * RGBD_GROUND_TILE / 2, rgbd_tiles)):
         obj, mtl = textured_grid_obj(name, half_side, n, 0.0)
         files[f"{name}.obj"], files[f"{name}.mtl"] = obj.encode(), mtl.encode()

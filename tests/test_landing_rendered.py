@@ -11,7 +11,7 @@ from alight.diagrams.analysis.landing import mission_transitions, score_landing
 from alight.diagrams.analysis.vio import evaluate_vio
 from alight.diagrams.cli import main
 from alight.diagrams.running.run_log import RunLog
-from alight.diagrams.scenario import load_scenario
+from alight.diagrams.scenario import load_scenario, vehicle_config
 from alight.systems.mission.landing import Mode
 from conftest import SHORT_LANDING
 
@@ -30,12 +30,12 @@ def rendered_landing(tmp_path_factory):
 
 @pytest.mark.mission
 def test_a_landing_flown_on_rendered_images_lands_within_the_accuracy_goal(rendered_landing):
-    """Seed 0 lands 6.9 cm from the platform's centre on the contact physics (issue 23's goal
-    is 15 cm); the whole mission runs in order."""
+    """Seed 0 lands 2.8 cm from the platform's centre on the contact physics (seed 1: 7.9 cm;
+    issue 23's goal is 15 cm); the whole mission runs in order."""
     status, run = rendered_landing
     scenario = load_scenario(run.path / "scenario.yaml")
-    assert (scenario.vehicle.down_camera.source, scenario.vehicle.rgbd_camera.source) == \
-        ("rendered", "rendered")
+    flown = vehicle_config(scenario)
+    assert (flown.down_camera.source, flown.rgbd_camera.source) == ("rendered", "rendered")
     assert scenario.onboard.estimator == "vio"
     impact = scenario.scoring.impact
     score = score_landing(run, impact.vertical_speed, impact.horizontal_speed)
@@ -49,29 +49,34 @@ def test_a_landing_flown_on_rendered_images_lands_within_the_accuracy_goal(rende
 def test_the_target_estimate_from_rendered_images_holds_the_car_to_centimetres(rendered_landing):
     """The target EKF fed by the detector on rendered frames, while the camera guides the
     vehicle (from half a second after the first detection to Landing Phase 2, whose descent is
-    blind): the platform's position within 8 cm of the truth, median under 4 cm (seeds 0 and 1:
-    median 1.5 and 2.0 cm, worst 2.6 cm; the estimate is in the VIO's frame, so this
-    holds the VIO's drift too)."""
+    blind): the platform's position relative to the vehicle's estimate (what the landing acts on;
+    both in the VIO's frame) within 6 cm of the true relative position, median under 4 cm
+    (seeds 0 and 1: median 2.7 and 3.3 cm, worst 3.2 and 4.2 cm)."""
     _, run = rendered_landing
     phase2 = [at for at, mode, _ in mission_transitions(run) if mode == Mode.LANDING_P2]
-    estimate, truth = run["target_estimate"], run["ground_truth"]
+    estimate, truth, vehicle = run["target_estimate"], run["ground_truth"], run["state_estimate"]
     valid = estimate["valid"].to_numpy() > 0.5
     assert valid.any() and phase2, "the detector never guided the vehicle onto the car"
     t = estimate["time"].to_numpy()[valid]
-    guided = (t > t[0] + 0.5) & (t < phase2[0])
-    p = run.field("target_estimate", "p_WT").to_numpy()[valid][guided, :2]
-    p_true = np.column_stack([np.interp(t[guided], truth["time"], truth[f"p_WT_{i}"])
-                              for i in range(2)])
-    error = np.linalg.norm(p - p_true, axis=1)
-    assert guided.sum() >= 5
-    assert np.median(error) < 0.04 and error.max() < 0.08, (np.median(error), error.max())
+    t = t[(t > t[0] + 0.5) & (t < phase2[0])]
+    assert len(t) >= 5
+
+    def at(frame, name):
+        return np.column_stack([np.interp(t, frame["time"], frame[f"{name}_{i}"])
+                                for i in range(2)])
+
+    relative = at(estimate, "p_WT") - at(vehicle, "p_EB")
+    error = np.linalg.norm(relative - (at(truth, "p_WT") - at(truth, "p_WB")), axis=1)
+    assert np.median(error) < 0.04 and error.max() < 0.06, (np.median(error), error.max())
 
 
 @pytest.mark.mission
 def test_the_vio_on_rendered_rgbd_flies_the_mission_with_centimetre_drift(rendered_landing):
-    """The VIO on rendered RGB-D frames over the whole mission (about 12 m flown): ATE under
-    4 cm (seed 0: 1.9 cm), final drift under 1 % of the distance (issue 20's goal; seed 0:
-    0.5 %), valid from its initialisation on, no window restart, features tracked."""
+    """The VIO on rendered RGB-D frames over the whole mission (about 12 m flown over the field
+    ground with grain): ATE under 4 cm (seeds 0 and 1: 3.3 and 2.2 cm), final drift under 1 % of
+    the distance (issue 20's goal; 0.69 % both), valid from its initialisation on, no window
+    restart, over 100 features tracked (126 and 135). On the down camera's smooth ground it
+    restarted 3-4 times with an ATE of 0.7-1.7 m."""
     _, run = rendered_landing
     vio = evaluate_vio(run)
     assert vio["travelled"] > 10.0

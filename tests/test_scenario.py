@@ -39,7 +39,7 @@ def test_overrides_reach_the_scenario_on_every_command():
                   "--stack", "managed", "--controller", "se3", "--seed", "7",
                   "--set", "simulator.max_duration: 30"],
                  lambda s: (s.target_motion.speed, s.vehicle.wind.mean_speed,
-                            s.vehicle.down_camera.source, s.vehicle.rgbd_camera.source,
+                            s.vehicle.down_camera.source, s.onboard.vio_camera.source,
                             s.onboard.stack, s.onboard.controller, s.random_seed,
                             s.simulator.max_duration),
                  (4.0, 5.0, "rendered", "rendered", "landing_managed", "se3", 7, 30.0)),

@@ -28,6 +28,7 @@ def run(args) -> int:
     from alight.diagrams.analysis.landing_plots import plot_mission, plot_paths
     from alight.diagrams.running.runner import run as run_scenario
     from alight.diagrams.running.simulation import make_meshcat
+    from alight.diagrams.scenario import vehicle_config
     from alight.systems.params import ConfigError
     try:
         scenario = args_scenario(args)
@@ -46,7 +47,8 @@ def run(args) -> int:
     if scenario.onboard.stack == "landing_managed":
         print(f"  control manager ({scenario.onboard.controller}): tracker " + ", ".join(
             f"{name} at {at:.2f} s" for at, name in tracker_switches(run)))
-    cameras = scenario.vehicle.down_camera.source, scenario.vehicle.rgbd_camera.source
+    flown = vehicle_config(scenario)      # the RGB-D camera the VIO flies on, if it does
+    cameras = flown.down_camera.source, flown.rgbd_camera.source
     print(f"{scenario.name} scenario, {' / '.join(cameras)} down / RGB-D camera, "
           f"{scenario.onboard.estimator} odometry, {scenario.onboard.stack} stack, seed "
           f"{scenario.random_seed}:")

@@ -43,8 +43,8 @@ FLAGS = {flag.flag.lstrip("-").replace("-", "_"): flag for flag in (
          float, "M_S"),
     Flag("--camera", "vehicle.down_camera.source", "camera images: the sensor models "
          "(geometric) or Drake-rendered images through the image pipelines, for the down camera "
-         "and the forward RGB-D camera alike (rendered: the acceptance mode)", str,
-         choices=("geometric", "rendered"), also=("vehicle.rgbd_camera.source",)),
+         "and the VIO's forward RGB-D camera alike (rendered: the acceptance mode)", str,
+         choices=("geometric", "rendered"), also=("onboard.vio_camera.source",)),
     Flag("--rgbd-camera", "vehicle.rgbd_camera", "forward RGB-D camera YAML (a path, or a file "
          "name in models/; its source geometric or rendered)", str, "FILE.yaml"),
     Flag("--estimator", "onboard.estimator", "odometry: mocap, vio (L Sec. 5.1, the forward "

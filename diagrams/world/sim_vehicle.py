@@ -111,7 +111,8 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
     add_ground(plant, config.ground_friction, perceived_ground(config.down_camera)
                and config.rgbd_camera.source != "rendered")
     instance = add_hexacopter(plant, params)
-    scene = add_target_scene(plant, config.target, config.down_camera)
+    scene = add_target_scene(plant, config.target, config.down_camera,
+                             grain=config.rgbd_camera.source == "rendered")
     add_rgbd_scene(plant, config.rgbd_camera, not perceived_ground(config.down_camera))
     plant.Finalize()
     body = plant.GetBodyByName(params.body)

@@ -42,13 +42,17 @@ class TargetScene:
     pattern: Pattern
 
 
-def add_target_scene(plant, target: TargetParams, camera: DownCameraParams) -> TargetScene:
+def add_target_scene(plant, target: TargetParams, camera: DownCameraParams,
+                     grain: bool = False) -> TargetScene:
     """Adds the target vehicle (unless `target.profile` is none) and, for a rendered camera, the
-    textured ground the camera sees. Call before `plant.Finalize()`."""
+    textured ground the camera sees: with `grain` (the forward VIO camera renders too) the
+    field ground, the same field with centimetre grain the VIO finds corners on (models/
+    textures.py). Call before `plant.Finalize()`."""
     vehicle = add_target_vehicle(plant, target) if target.profile != "none" else None
     if camera.source == "rendered":
+        ground = "field_ground.obj" if grain else "target_ground.obj"
         plant.RegisterVisualGeometry(plant.world_body(), GeometryInstance(
-            RigidTransform(), Mesh(str(model_path("target_ground.obj"))), "ground_texture"))
+            RigidTransform(), Mesh(str(model_path(ground))), "ground_texture"))
     return TargetScene(target, camera, vehicle, Pattern(target.pattern))
 
 

@@ -96,9 +96,11 @@ def depth_noise_std(z, focal_length: float, baseline: float, disparity_noise_std
 
 def _noisy_depth(rng, z: np.ndarray, params: RgbdCameraParams, holes: np.ndarray) -> np.ndarray:
     """Depth with the range-dependent noise, NaN where out of range or in a hole."""
+    finite = np.isfinite(z)                # a rendered sky is at infinity
+    z = np.where(finite, z, 0.0)
     noisy = z + rng.standard_normal(z.shape) * depth_noise_std(
         z, params.focal_length, params.baseline, params.disparity_noise_std)
-    missing = holes | ~np.isfinite(z) | (z < params.depth_min) | (z > params.depth_max)
+    missing = holes | ~finite | (z < params.depth_min) | (z > params.depth_max)
     return np.where(missing, np.nan, noisy)
 
 
