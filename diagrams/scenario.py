@@ -225,10 +225,11 @@ def placed_target(scenario: Scenario):
 
 
 def vehicle_config(scenario: Scenario, vio_camera: bool = True) -> SimVehicleConfig:
-    """The simulated vehicle of the scenario: with a landing mission, the target car placed by
-    `target_motion`; with VIO odometry (and `vio_camera`), the forward RGB-D camera
-    `onboard.vio_camera`."""
-    config = scenario.vehicle
+    """The simulated vehicle of the scenario: the rendered scene's light drawn from its
+    `random_seed`; with a landing mission, the target car placed by `target_motion`; with VIO
+    odometry (and `vio_camera`), the forward RGB-D camera `onboard.vio_camera`."""
+    config = dc.replace(scenario.vehicle, lighting=dc.replace(scenario.vehicle.lighting,
+                                                               seed=scenario.random_seed))
     if isinstance(scenario.mission, LandingMissionParams):
         config = dc.replace(config, target=placed_target(scenario))
     if scenario.onboard.estimator == "vio" and vio_camera:

@@ -15,6 +15,7 @@ from pydrake.systems.sensors import Accelerometer, Gyroscope
 from alight.diagrams.world.contacts import add_contacts
 from alight.diagrams.world.flight_controller import make_flight_controller
 from alight.diagrams.world.ground import add_ground
+from alight.diagrams.world.lighting import LightingParams, add_renderer
 from alight.diagrams.world.rgbd_camera import add_rgbd_camera, add_rgbd_scene
 from alight.systems.sensors.sampled import add_sampled_sensor
 from alight.diagrams.world.target import add_target_scene, add_target_systems, perceived_ground
@@ -59,6 +60,7 @@ class SimVehicleConfig:
     down_camera: DownCameraParams = dc.field(default_factory=DownCameraParams)  # source none: no camera
     target: TargetParams = dc.field(default_factory=TargetParams)  # profile none: no target
     rgbd_camera: RgbdCameraParams = dc.field(default_factory=RgbdCameraParams)  # the VIO camera
+    lighting: LightingParams = dc.field(default_factory=LightingParams)  # of rendered cameras
     # the downward rangefinder on `range` (against the ground and the car; an outage window over
     # the whole flight: none fitted)
     rangefinder: RangefinderParams = param_file(RangefinderParams, "rangefinder.yaml")
@@ -115,6 +117,9 @@ def make_sim_vehicle(config: SimVehicleConfig, meshcat: Meshcat | None = None,
                              grain=config.rgbd_camera.source == "rendered")
     add_rgbd_scene(plant, config.rgbd_camera, not perceived_ground(config.down_camera))
     plant.Finalize()
+    rendered = [c for c in (config.down_camera, config.rgbd_camera) if c.source == "rendered"]
+    if rendered:    # the one renderer both cameras see the scene through
+        add_renderer(scene_graph, config.lighting, rendered[0].renderer_backend)
     body = plant.GetBodyByName(params.body)
     frame = airframe(plant, params)
     n = frame.num_rotors

@@ -10,8 +10,8 @@ import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (Box, ClippingRange, ColorRenderCamera, Cylinder, DepthRange,
-                              DepthRenderCamera, GeometryInstance, MakeRenderEngineVtk, Mesh,
-                              RenderCameraCore, RenderEngineVtkParams)
+                              DepthRenderCamera, GeometryInstance, Mesh,
+                              RenderCameraCore)
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
@@ -20,6 +20,7 @@ from pydrake.systems.primitives import (ConstantValueSource, Multiplexer, Random
 from pydrake.systems.sensors import CameraInfo, RgbdSensor
 
 from alight.diagrams.world.ground import add_ground
+from alight.diagrams.world.lighting import RENDERER, LightingParams, add_renderer
 from alight.models import model_path
 from alight.systems.boundary import CameraFrame
 from alight.systems.perception.pattern import Pattern, load_pattern_params
@@ -30,7 +31,6 @@ from alight.systems.target.motion import (NOISE_SIZE, STATE_SIZE, TargetMotion, 
 from alight.systems.target.vehicle import (PlatformState, TargetParams, TargetVehicle,
                                            add_target_vehicle, target_drive)
 
-RENDERER = "down_camera_vtk"
 
 
 @dc.dataclass
@@ -162,13 +162,14 @@ def body_outline(plant, inspector, platform) -> np.ndarray | None:
 
 
 def add_render_sensor(builder, plant, scene_graph, params: DownCameraParams, body,
-                      intrinsics=None, name: str = "down_camera_render") -> RgbdSensor:
-    """A VTK renderer (headless) and a Drake RgbdSensor attached to `body` at `params.X_BC()`,
-    with the pinhole `intrinsics` (width, height, f, cx, cy), by default the one that covers the
-    down camera's lens (`render_intrinsics`)."""
-    if not scene_graph.HasRenderer(RENDERER):
-        scene_graph.AddRenderer(RENDERER, MakeRenderEngineVtk(RenderEngineVtkParams(
-            backend=params.renderer_backend)))
+                      intrinsics=None, name: str = "down_camera_render",
+                      lighting: LightingParams | None = None) -> RgbdSensor:
+    """The scene's VTK renderer lit by `lighting` (`lighting.add_renderer`; default Drake's
+    headlight, the light the detector's grid tests are calibrated in), unless the scene has it,
+    and a Drake RgbdSensor attached to `body`
+    at `params.X_BC()`, with the pinhole `intrinsics` (width, height, f, cx, cy), by default the
+    one that covers the down camera's lens (`render_intrinsics`)."""
+    add_renderer(scene_graph, lighting or LightingParams(kind="camera"), params.renderer_backend)
     width, height, f, cx, cy = intrinsics or render_intrinsics(params)
     core = RenderCameraCore(RENDERER, CameraInfo(width, height, f, f, cx, cy),
                             ClippingRange(0.05, 200.0), RigidTransform())
@@ -182,9 +183,11 @@ def add_render_sensor(builder, plant, scene_graph, params: DownCameraParams, bod
 class DownCameraRig:
     """The target scene and the down camera without dynamics: `render(X_WB, target_pose)` gives the
     distorted grey image of the camera on a body at X_WB, `observe` the geometric source's
-    noise-free keypoints, `X_CT` the true pattern pose in the camera."""
+    noise-free keypoints, `X_CT` the true pattern pose in the camera; lit by `lighting` (default
+    Drake's headlight)."""
 
-    def __init__(self, camera: DownCameraParams, target: TargetParams):
+    def __init__(self, camera: DownCameraParams, target: TargetParams,
+                 lighting: LightingParams | None = None):
         builder = DiagramBuilder()
         plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
         from pydrake.multibody.tree import SpatialInertia
@@ -196,7 +199,8 @@ class DownCameraRig:
         self.scene = add_target_scene(plant, target, camera)
         add_ground(plant, 0.8, perceived=False)
         plant.Finalize()
-        self._sensor = add_render_sensor(builder, plant, scene_graph, camera, self._body)
+        self._sensor = add_render_sensor(builder, plant, scene_graph, camera, self._body,
+                                         lighting=lighting)
         self.camera = RenderedDownCamera(camera)
         self.lens = camera.lens()
         outline_T = body_outline(plant, scene_graph.model_inspector(), self.scene.vehicle.platform)
