@@ -128,8 +128,9 @@ def fly_vio(config, waypoints, seed: int = 0, run_dir=None, closed_loop: bool = 
             blackouts=None):
     """Flies `waypoints` (`fly_waypoints`) with the VIO (`params`, default models/vio.yaml) on
     the forward camera (`camera`, default models/rgbd_camera.yaml) in the loop, or beside mocap
-    (`closed_loop=False`)."""
-    config = dc.replace(config, rgbd_camera=camera or load_rgbd_camera_params())
+    (`closed_loop=False`); a rendered camera sees the scene under the light of `seed`."""
+    config = dc.replace(config, rgbd_camera=camera or load_rgbd_camera_params(),
+                        lighting=dc.replace(config.lighting, seed=seed))
     params = load_vio_params() if params is None else params
     if config.rgbd_camera.source == "none":
         raise ValueError("the VIO needs the forward RGB-D camera: rgbd_camera.source is none")
