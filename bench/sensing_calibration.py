@@ -18,6 +18,7 @@ than the pattern); outlying keypoints per frame (tracked or associated more than
 truth); for the geometric source its false candidates per frame.
 
     python bench/sensing_calibration.py [--frames 6] [--geometric-frames 200]
+        [--lighting camera|sun --light-seed N]
 
 Rendering a 1280 x 1024 frame in software takes about 0.5 s of CPU: the default 6 frames per cell
 (5 distances + 4 rates, 54 rendered frames) takes about 2 minutes on one core.
@@ -31,6 +32,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from alight.diagrams.onboard.perception import load_target_estimator_params
+from alight.diagrams.world.lighting import LightingParams, draw_light
 from alight.diagrams.world.target import DownCameraRig
 from alight.models import model_path
 from alight.systems.params import load_params
@@ -103,9 +105,10 @@ class Tally:
 
 
 class Bench:
-    def __init__(self):
+    def __init__(self, lighting: LightingParams):
         self.camera = load_params(DownCameraParams, model_path("down_camera.yaml"))
-        self.rig = DownCameraRig(self.camera, load_target_params())
+        self.lighting = lighting
+        self.rig = DownCameraRig(self.camera, load_target_params(), lighting)
         self.params = load_target_estimator_params()
         self.pattern = Pattern(self.params.pattern)
         self.estimator = TargetEstimator(self.pattern, self.params)
@@ -163,8 +166,14 @@ def main():
     parser.add_argument("--frames", type=int, default=6, help="rendered frames per cell")
     parser.add_argument("--geometric-frames", type=int, default=200,
                         help="geometric frames per cell")
+    parser.add_argument("--lighting", choices=("camera", "sun"), default="camera",
+                        help="the rendered scene's light: Drake's headlight (the calibration's) "
+                             "or the sun drawn from --light-seed (vehicle.lighting)")
+    parser.add_argument("--light-seed", type=int, default=0)
     args = parser.parse_args()
-    bench = Bench()
+    bench = Bench(LightingParams(kind=args.lighting, seed=args.light_seed))
+    if args.lighting == "sun":
+        print(f"lit by {draw_light(bench.lighting)}")
     cells = [(d, 0.0) for d in DISTANCES] + [(RATE_DISTANCE, r) for r in RATES]
     header = "detect  corner p50 p90  kp p50 p90  kp/fr  falsedet/fr  outl/fr  falsecand/fr"
     print(f"camera {bench.camera.width}x{bench.camera.height}, f {bench.camera.focal_length} px, "

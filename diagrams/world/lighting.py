@@ -54,7 +54,7 @@ def draw_light(params: LightingParams) -> Light:
     sky = float(rng.uniform(*params.sky_share))
     ground = float(rng.uniform(*params.exposure))
     return Light(sun_elevation=elevation, sun_azimuth=azimuth,
-                 sun_intensity=ground * (1.0 - sky) / np.sin(np.radians(elevation)),
+                 sun_intensity=float(ground * (1.0 - sky) / np.sin(np.radians(elevation))),
                  sky_intensity=ground * sky)
 
 
