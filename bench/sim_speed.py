@@ -14,7 +14,8 @@ Cases (`--cases`, default all but `rendered` unless `--rendered`):
   whole mission as the runner flies it: build, simulate to the stop condition, write the run
   folder (build and writing are printed apart and amortized in the "whole" figure);
 - `vio`: the same on VIO (the scenario's default odometry, the geometric RGB-D source);
-- `rendered`: the same with the rendered down camera (`vehicle.down_camera.source: rendered`, mocap; slow).
+- `rendered`: the same with the rendered down camera (`vehicle.down_camera.source: rendered`,
+  mocap; slow).
 
 With `--profile` (default) each case is flown a second time with every Python LeafSystem callback
 (output calculations, update and publish events, the runner's stop monitor) wrapped by a

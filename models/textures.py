@@ -66,8 +66,7 @@ def rgbd_ground_texture(seed: int = 11) -> np.ndarray:
     n = GROUND_PIXELS
 
     def layer(sigma):
-        noise = _periodic_blur(rng.normal(0, 1, (n, n)), sigma)
-        return noise / noise.std()
+        return _unit_noise(rng, n, sigma)
 
     patches = layer(30)
     grey = 150 + 20 * patches + 18 * layer(4) + 18 * layer(1)
@@ -85,13 +84,14 @@ def field_ground_texture(seed: int = 13) -> np.ndarray:
     rng = np.random.default_rng(seed)
     n = 2 * GROUND_PIXELS
     base = cv2.resize(ground_texture(), (n, n), interpolation=cv2.INTER_LINEAR).astype(float)
-
-    def layer(sigma):
-        noise = _periodic_blur(rng.normal(0, 1, (n, n)), sigma)
-        return noise / noise.std()
-
-    grain = 16 * layer(4) + 16 * layer(1)
+    grain = 16 * _unit_noise(rng, n, 4) + 16 * _unit_noise(rng, n, 1)
     return np.clip(base + grain[..., None], 0, 255).astype(np.uint8)
+
+
+def _unit_noise(rng, n: int, sigma: float) -> np.ndarray:
+    """An n x n tile of Gaussian noise blurred over `sigma` px (wrapping), scaled to unit std."""
+    noise = _periodic_blur(rng.normal(0, 1, (n, n)), sigma)
+    return noise / noise.std()
 
 
 def _periodic_blur(noise: np.ndarray, sigma: float) -> np.ndarray:

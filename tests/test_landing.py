@@ -113,9 +113,6 @@ def test_a_descent_beside_the_swerving_car_goes_around_on_the_rangefinder_and_la
     assert truth["legs_ground_force"][flying].max() == 0.0     # never touched the road
 
 
-SHORT = SHORT_LANDING
-
-
 def _rows(frame):
     return frame.drop(columns=["wall_time", "run_dir"]).reset_index(drop=True)
 
@@ -126,7 +123,7 @@ def test_the_car_swerving_away_under_the_blind_descent_is_a_ground_touchdown(tmp
     pulled aside then and the rangefinder out (no fresh range: L's rule on the estimate alone;
     with it the mission goes around, above): the mission lands where the car would have been,
     on the ground, and the contact says so."""
-    scenario = load_scenario("field", overrides=[*SHORT, f"target_motion.speed: {SPEED}",
+    scenario = load_scenario("field", overrides=[*SHORT_LANDING, f"target_motion.speed: {SPEED}",
                                                  "target_motion.pull_times: [8.2]",
                                                  "camera_blackouts: [[8.2, 20.0]]",
                                                  "vehicle.rangefinder.outages: [[0.0, 20.0]]"])
@@ -149,7 +146,7 @@ def test_campaign_resumes_and_a_dask_cluster_gives_the_same_runs(tmp_path):
     once then resumed on the local pool, and again on a Dask cluster: the same rows."""
     from distributed import Client, LocalCluster
     local = tmp_path / "local"
-    jobs = campaign_jobs(local, "field", [SPEED], 2, overrides=SHORT)
+    jobs = campaign_jobs(local, "field", [SPEED], 2, overrides=SHORT_LANDING)
     first = run_campaign(local, jobs[:1], progress=False)       # "interrupted" after one run
     rows = run_campaign(local, jobs, progress=False)             # resumes: runs only the other
     assert len(first) == 1 and len(rows) == 2
@@ -158,7 +155,7 @@ def test_campaign_resumes_and_a_dask_cluster_gives_the_same_runs(tmp_path):
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster, Client(cluster) as client:
         remote = run_campaign(tmp_path / "dask", campaign_jobs(tmp_path / "dask", "field",
-                                                               [SPEED], 2, overrides=SHORT),
+                                                               [SPEED], 2, overrides=SHORT_LANDING),
                               scheduler=client, progress=False)
     assert _rows(remote).equals(_rows(rows))
     summary = summarize(rows)

@@ -1,8 +1,8 @@
 """The acceptance mode closed loop (issue 20): both cameras rendered by Drake, the down camera's
 images through the detector and keypoint tracker into the target EKF, the forward RGB-D camera's
 through the VIO front end and back end whose estimate flies the vehicle. The short field landing
-(conftest.SHORT_LANDING) keeps it to about a minute of CPU; the 10-runs-per-speed campaign of this
-mode is in docs/benchmarks.md "Acceptance campaign"."""
+(conftest.SHORT_LANDING) keeps it to about a minute of CPU; this mode's campaign is in
+docs/benchmarks.md "Full acceptance mode, 3 runs per speed on the 2-core machine"."""
 
 import numpy as np
 import pytest

@@ -162,14 +162,10 @@ def body_outline(plant, inspector, platform) -> np.ndarray | None:
 
 
 def add_render_sensor(builder, plant, scene_graph, params: DownCameraParams, body,
-                      intrinsics=None, name: str = "down_camera_render",
-                      lighting: LightingParams | None = None) -> RgbdSensor:
-    """The scene's VTK renderer lit by `lighting` (`lighting.add_renderer`; default Drake's
-    headlight, the light the detector's grid tests are calibrated in), unless the scene has it,
-    and a Drake RgbdSensor attached to `body`
-    at `params.X_BC()`, with the pinhole `intrinsics` (width, height, f, cx, cy), by default the
-    one that covers the down camera's lens (`render_intrinsics`)."""
-    add_renderer(scene_graph, lighting or LightingParams(kind="camera"), params.renderer_backend)
+                      intrinsics=None, name: str = "down_camera_render") -> RgbdSensor:
+    """A Drake RgbdSensor on the scene's renderer (`lighting.add_renderer`, added before)
+    attached to `body` at `params.X_BC()`, with the pinhole `intrinsics` (width, height, f, cx,
+    cy), by default the one that covers the down camera's lens (`render_intrinsics`)."""
     width, height, f, cx, cy = intrinsics or render_intrinsics(params)
     core = RenderCameraCore(RENDERER, CameraInfo(width, height, f, f, cx, cy),
                             ClippingRange(0.05, 200.0), RigidTransform())
@@ -199,8 +195,10 @@ class DownCameraRig:
         self.scene = add_target_scene(plant, target, camera)
         add_ground(plant, 0.8, perceived=False)
         plant.Finalize()
-        self._sensor = add_render_sensor(builder, plant, scene_graph, camera, self._body,
-                                         lighting=lighting)
+        # Drake's headlight by default: the light the detector's grid tests are calibrated in
+        add_renderer(scene_graph, lighting or LightingParams(kind="camera"),
+                     camera.renderer_backend)
+        self._sensor = add_render_sensor(builder, plant, scene_graph, camera, self._body)
         self.camera = RenderedDownCamera(camera)
         self.lens = camera.lens()
         outline_T = body_outline(plant, scene_graph.model_inspector(), self.scene.vehicle.platform)
