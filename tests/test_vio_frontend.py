@@ -4,7 +4,7 @@ starts landmarks."""
 import numpy as np
 
 from alight.systems.boundary import CameraFrame
-from alight.systems.vio.frontend import FrontendParams, KltTracker
+from alight.systems.vio.frontend import FrontendParams, KltTracker, lookup_depth
 
 
 def _frame(image, depth):
@@ -29,3 +29,21 @@ def test_without_a_depth_image_corners_are_detected_everywhere():
     keypoints = KltTracker(FrontendParams()).track(_frame(image, None))
     assert len(keypoints) >= 100 and np.all(np.isnan(keypoints.depth))
     assert keypoints.uv[:, 1].min() < 100 and keypoints.uv[:, 1].max() > 380
+
+
+def test_keypoint_depth_is_the_median_of_the_valid_depths_around_it():
+    """Per keypoint: the median of the finite, positive depths in its patch, clipped at the
+    image's border; NaN where the patch has none (a corner on a hole of the depth image)."""
+    rng = np.random.default_rng(2)
+    depth = rng.uniform(0.5, 9.0, (40, 60)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = np.nan
+    depth[rng.random(depth.shape) < 0.05] = 0.0      # no return
+    depth[10:17, 20:27] = np.nan                      # a hole larger than the patch
+    uv = np.array([[0.2, 0.4], [59.4, 39.0], [30.0, 20.0], [23.0, 13.0], [5.6, 38.5],
+                   [12.0, 7.0], [58.0, 1.0]])
+    got = lookup_depth(depth, uv, 2)
+    for (u, v), value in zip(np.rint(uv).astype(int), got):
+        patch = depth[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]
+        valid = patch[np.isfinite(patch) & (patch > 0)]
+        assert (np.isnan(value) and valid.size == 0) or value == np.median(valid)
+    assert np.isnan(got[3]) and np.isfinite(got[[0, 1, 2, 4, 5, 6]]).all()

@@ -71,16 +71,24 @@ def virtual_stereo(uv: np.ndarray, depth: np.ndarray, K: np.ndarray, baseline: f
 
 
 def lookup_depth(depth_image: np.ndarray, uv: np.ndarray, half: int) -> np.ndarray:
-    """Median of the valid depths in a (2 half + 1)^2 patch around each pixel (NaN if none)."""
+    """Median of the valid depths in a (2 half + 1)^2 patch around each pixel (NaN if none).
+
+    All patches at once: the patch's pixels gathered by index (those outside the image and the
+    invalid depths as NaN), sorted with the NaNs last, the middle of the valid ones taken."""
     h, w = depth_image.shape
-    out = np.full(len(uv), np.nan)
-    for i, (u, v) in enumerate(np.rint(uv).astype(int)):
-        patch = depth_image[max(v - half, 0):min(v + half + 1, h),
-                            max(u - half, 0):min(u + half + 1, w)]
-        valid = patch[np.isfinite(patch) & (patch > 0)]
-        if valid.size:
-            out[i] = np.median(valid)
-    return out
+    pixel = np.rint(np.asarray(uv, float).reshape(-1, 2)).astype(int)
+    offsets = np.arange(-half, half + 1)
+    u = pixel[:, 0, None, None] + offsets[None, None, :]
+    v = pixel[:, 1, None, None] + offsets[None, :, None]
+    inside = ((u >= 0) & (u < w) & (v >= 0) & (v < h)).reshape(len(pixel), -1)
+    patch = depth_image[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].reshape(len(pixel), -1)
+    patch = np.where(inside & np.isfinite(patch) & (patch > 0), patch, np.nan)
+    patch.sort(axis=1)
+    count = np.count_nonzero(~np.isnan(patch), axis=1)
+    rows = np.arange(len(pixel))
+    low = patch[rows, np.maximum(count - 1, 0) // 2]
+    high = patch[rows, count // 2 - (count == 0)]
+    return np.where(count > 0, (low + high) / 2, np.nan).astype(float)
 
 
 class KltTracker:
