@@ -47,3 +47,4 @@ def test_keypoint_depth_is_the_median_of_the_valid_depths_around_it():
         valid = patch[np.isfinite(patch) & (patch > 0)]
         assert (np.isnan(value) and valid.size == 0) or value == np.median(valid)
     assert np.isnan(got[3]) and np.isfinite(got[[0, 1, 2, 4, 5, 6]]).all()
+    assert lookup_depth(depth, np.zeros((0, 2)), 2).shape == (0,)   # no keypoints

@@ -178,7 +178,7 @@ def test_keyframes_add_at_most_max_landmarks_known_first_and_the_window_forgets_
             pim.integrateMeasurement(np.array([0.0, 0.0, params.gravity]), np.zeros(3), 0.005)
         window.add_keyframe(0.1 * k, pim, obs)
         in_smoother = {gtsam.Symbol(key).index()
-                       for key in window._smoother.calculateEstimate().keys()
+                       for key in window._smoother.isam.calculateEstimate().keys()
                        if gtsam.Symbol(key).chr() == ord("l")}
         assert {o.track for o in obs if window.knows(o.track)} <= in_smoother
         assert window.landmark_count() == len(in_smoother)
@@ -290,3 +290,57 @@ def test_the_vio_at_rest_stays_put_with_outlier_matches():
     assert VIO_ODOMETRY.get(odometry, "status") == VioStatus.TRACKING
     np.testing.assert_allclose(STATE_ESTIMATE.get(estimate, "p_EB"), [0, 0, 0.22], atol=0.01)
     assert rig.dut.estimator._tracker.rejected > 50  # ~0.05 x 150 x 90 frames injected
+
+
+def test_the_fixed_lag_smoother_gives_gtsams_estimate_and_marginals_with_the_newest_at_the_root():
+    """backend.FixedLagSmoother (the newest keyframe eliminated last) against GTSAM's
+    IncrementalFixedLagSmoother on the same factors: a camera moving past landmarks, stereo
+    measurements with noise, odometry between poses, 3 s at 10 Hz with a 1 s lag. The same
+    estimate and the same marginal covariance of the newest pose at every step; the variables
+    older than the lag are gone from ours as from GTSAM's."""
+    import gtsam
+    from gtsam.symbol_shorthand import L, X
+
+    from alight.systems.vio.backend import FixedLagSmoother
+    rng = np.random.default_rng(3)
+    K = gtsam.Cal3_S2Stereo(460.0, 460.0, 0.0, 319.5, 239.5, 0.1)
+    stereo_noise = gtsam.noiseModel.Isotropic.Sigma(3, 0.5)
+    odometry_noise = gtsam.noiseModel.Isotropic.Sigma(6, 0.05)
+    landmarks = np.column_stack([rng.uniform(-2, 8, 60), rng.uniform(-2, 2, 60),
+                                 rng.uniform(3, 8, 60)])
+    ours = FixedLagSmoother(1.0, gtsam.ISAM2Params())
+    theirs = gtsam.IncrementalFixedLagSmoother(1.0, gtsam.ISAM2Params())
+    for k in range(30):
+        t = 0.1 * k
+        pose = gtsam.Pose3(gtsam.Rot3.Yaw(0.02 * k), np.array([0.2 * k, 0.0, 0.0]))
+        graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {X(k): t}
+        values.insert(X(k), pose.compose(gtsam.Pose3(gtsam.Rot3.Yaw(0.01), [0.02, -0.01, 0.0])))
+        if k == 0:
+            graph.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+        else:
+            previous = gtsam.Pose3(gtsam.Rot3.Yaw(0.02 * (k - 1)), np.array([0.2 * (k - 1), 0, 0]))
+            graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), previous.between(pose),
+                                               odometry_noise))
+        camera = gtsam.StereoCamera(pose, K)
+        for j, p_W in enumerate(landmarks):
+            p_C = pose.transformTo(p_W)
+            if not 1.0 < p_C[2] < 10.0 or abs(p_C[0] / p_C[2]) > 0.6 or abs(p_C[1] / p_C[2]) > 0.5:
+                continue
+            z = camera.project(p_W)
+            measured = gtsam.StereoPoint2(z.uL() + rng.normal(0, 0.5),
+                                          z.uR() + rng.normal(0, 0.5), z.v() + rng.normal(0, 0.5))
+            graph.add(gtsam.GenericStereoFactor3D(measured, stereo_noise, X(k), L(j), K))
+            if not ours.isam.valueExists(L(j)):   # new, or marginalized and seen again
+                values.insert(L(j), p_W + rng.normal(0, 0.05, 3))
+            stamps[L(j)] = t
+        gtsam_stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        for key, stamp in stamps.items():
+            gtsam_stamps.insert((key, stamp))
+        theirs.update(graph, values, gtsam_stamps)
+        ours.update(graph, values, stamps)
+        np.testing.assert_allclose(ours.isam.calculateEstimatePose3(X(k)).matrix(),
+                                   theirs.calculateEstimatePose3(X(k)).matrix(), atol=1e-6)
+        np.testing.assert_allclose(ours.isam.marginalCovariance(X(k)),
+                                   theirs.marginalCovariance(X(k)), rtol=1e-5, atol=1e-12)
+        assert ours.isam.calculateEstimate().keys() == theirs.calculateEstimate().keys()
+    assert not ours.isam.valueExists(X(15)) and ours.isam.valueExists(X(20))

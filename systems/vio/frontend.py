@@ -77,6 +77,8 @@ def lookup_depth(depth_image: np.ndarray, uv: np.ndarray, half: int) -> np.ndarr
     invalid depths as NaN), sorted with the NaNs last, the middle of the valid ones taken."""
     h, w = depth_image.shape
     pixel = np.rint(np.asarray(uv, float).reshape(-1, 2)).astype(int)
+    if not len(pixel):
+        return np.zeros(0)
     offsets = np.arange(-half, half + 1)
     u = pixel[:, 0, None, None] + offsets[None, None, :]
     v = pixel[:, 1, None, None] + offsets[None, :, None]
