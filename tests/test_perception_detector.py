@@ -50,13 +50,15 @@ PREDICTION_ERROR = RigidTransform(RollPitchYaw(0.0, 0.02, 0.03), [0.08, -0.06, 0
 PREDICTION_STD = (0.1, 0.03)  # m, rad
 
 
-def _detect(rig, perception, image, R_WC, prediction=None):
+def _detect(rig, perception, image, R_WC, prediction=None, height=None):
     """As the target estimator runs it: with the world's up in the camera frame (from the state
-    estimate) to pick the level one of the planar pose solutions."""
+    estimate) to pick the level one of the planar pose solutions, and the camera's height above
+    the ground (`height`) to search the whole frame at a coarser level when it allows."""
     rectifier, detector = perception
     frame = RectifiedFrame(rectifier, image, rig.lens)
     z_up_C = R_WC.inverse().multiply(np.array([0.0, 0.0, 1.0]))
-    return detector, frame, detector.detect(frame, z_up_C=z_up_C, prediction=prediction)
+    return detector, frame, detector.detect(frame, z_up_C=z_up_C, prediction=prediction,
+                                            height=height)
 
 
 def _predicted(X_CT) -> Prediction:
@@ -105,9 +107,13 @@ def grid(rig, perception):
         X_CT = rig.X_CT()
         *_, detections = _detect(rig, perception, image, R_WC)
         *_, tracked = _detect(rig, perception, image, R_WC, _predicted(X_CT))
+        *_, by_height = _detect(rig, perception, image, R_WC, height=p_WC[2])
         results.append(dict(height=height, tilt=tilt, offset=(fu, fv), whole=whole, side=side,
                             inside=whole and bool(rig.lens.in_image(corners, 10.0).all()),
-                            X_CT=X_CT, detections=detections, roi_detections=tracked))
+                            X_CT=X_CT, detections=detections, roi_detections=tracked,
+                            height_detections=by_height,
+                            level=perception[1].whole_frame_level(
+                                rig.lens, p_WC[2], R_WC.inverse().multiply([0.0, 0.0, 1.0]))))
     return results
 
 
@@ -124,11 +130,12 @@ def ground_frames(rig, perception):
         image = rig.render(X_WB, (500.0, 500.0, 0.0), seed=i + 3 * j)
         R_WC = X_WB.rotation() @ rig.X_BC.rotation()
         detector, frame, detections = _detect(rig, perception, image, R_WC)
+        *_, by_height = _detect(rig, perception, image, R_WC, height=height)
         # a prediction of the pattern where a look-alike is (the image centre, 6 m away)
         X_CT = RigidTransform(RotationMatrix(R_WC.inverse().matrix()), [0.0, 0.0, 6.0])
         *_, predicted = _detect(rig, perception, image, R_WC, Prediction(X_CT, 0.3, 0.1))
         frames.append(dict(candidates=detector.candidates(frame.view()),
-                           detections=detections + predicted))
+                           detections=detections + predicted + by_height))
     return frames
 
 
@@ -138,9 +145,10 @@ def _seen(r) -> bool:
     return r["inside"] and r["side"] >= 15.0
 
 
-@pytest.mark.parametrize("mode", ["detections", "roi_detections"])
+@pytest.mark.parametrize("mode", ["detections", "roi_detections", "height_detections"])
 def test_detection_recall_over_heights_tilts_and_image_positions(grid, mode):
-    """Cold start (the whole frame) and around a prediction (window, pyramid, fallback)."""
+    """Cold start (the whole frame at full resolution), around a prediction (window, pyramid,
+    fallback) and cold at the level the camera's height above the ground allows."""
     seen = [r for r in grid if _seen(r)]
     recall = np.mean([len(r[mode]) > 0 for r in seen])
     by_height = {h: float(np.mean([len(r[mode]) > 0 for r in seen if r["height"] == h]))
@@ -157,17 +165,40 @@ def test_detection_recall_over_heights_tilts_and_image_positions(grid, mode):
     assert min(by_height.values()) >= 0.8
 
 
-def test_search_around_the_prediction_finds_the_same_corners(grid):
-    """The window / pyramid search refines its corners at full resolution: the same corners as
-    the whole-frame search to a small fraction of a pixel, wherever both found the pattern."""
-    both = [r for r in grid if r["detections"] and r["roi_detections"]]
-    gaps = [np.linalg.norm(r["roi_detections"][0].corners[None]
+@pytest.mark.parametrize("mode", ["roi_detections", "height_detections"])
+def test_search_around_the_prediction_or_coarser_finds_the_same_corners(grid, mode):
+    """The window / pyramid search and the coarser whole-frame search refine their corners at
+    full resolution: the same corners as the full-resolution whole-frame search to a small
+    fraction of a pixel, wherever both found the pattern (the coarser whole-frame search: with
+    the square 10 px inside the image; at the border the full-resolution patch it refines in is
+    clipped by the image's edge: 2.7 px off once, on a corner 1 px from it)."""
+    both = [r for r in grid if r["detections"] and r[mode]
+            and (mode == "roi_detections" or r["inside"])]
+    gaps = [np.linalg.norm(r[mode][0].corners[None]
                            - r["detections"][0].corners[:, None], axis=2).min(axis=1).max()
             for r in both]
     print(f"\n{len(both)} frames: corner gap median {np.median(gaps):.3f} px, max "
           f"{np.max(gaps):.3f} px")
     assert len(both) >= 50
     assert np.median(gaps) < 0.1 and np.max(gaps) < 0.5
+
+
+def test_the_whole_frame_is_searched_coarser_only_where_the_pattern_stays_large(grid, rig,
+                                                                                 perception):
+    """Level 1 or 2 over a level platform seen from low enough; full resolution when the
+    camera is tilted so far that the horizon is in view."""
+    _, detector = perception
+    levels = {r["height"]: r["level"] for r in grid if r["tilt"] == 0.0}
+    assert levels[2.0] >= 1 and levels[15.0] == 0
+    assert all(r["level"] == 0 or r["side"] >= 48.0 * (1 << r["level"])
+               for r in grid if r["whole"])
+    nadir = np.array([0.0, 0.0, -1.0])  # up, in the frame of a camera looking straight down
+    # f = 256 px: the 1.3 m square spans 256 * 1.3 / 1.7 = 196 px from 1.7 m: a quarter is 49
+    assert detector.whole_frame_level(rig.lens, 1.7, nadir) == 2
+    assert detector.whole_frame_level(rig.lens, 3.0, nadir) == 1   # 111 px: half is 55
+    assert detector.whole_frame_level(rig.lens, 8.0, nadir) == 0
+    sideways = np.array([0.0, -np.sin(np.radians(70)), -np.cos(np.radians(70))])
+    assert detector.whole_frame_level(rig.lens, 1.7, sideways) == 0
 
 
 def test_search_region_grows_with_uncertainty_and_coarsens_when_large(rig, perception):

@@ -234,6 +234,7 @@ class PatternDetector:
         self._references = {}
         self._brisk = cv2.BRISK_create()
         self._brisk_template = self._brisk_descriptor(pattern.template(n))
+        self._corner_side = float(np.linalg.norm(pattern.corners[1] - pattern.corners[0]))
 
     def candidates(self, view: View, both_scores: bool = False) -> list[Candidate]:
         """Every convex quadrilateral wholly inside the view's valid pixels, refined, with its
@@ -243,18 +244,39 @@ class PatternDetector:
 
     def detect(self, frame: RectifiedFrame, R_CT_reference: np.ndarray | None = None,
                z_up_C: np.ndarray | None = None,
-               prediction: Prediction | None = None) -> list[Detection]:
+               prediction: Prediction | None = None, height: float | None = None) \
+            -> list[Detection]:
         """Verified detections, best first; nested duplicates (the same pattern's inner and outer
         quads) are merged. With a `prediction`, the window around it (`search_region`) is searched
-        first and the whole frame only if that finds nothing. `R_CT_reference`, `z_up_C`: see
-        `pose`."""
+        first and the whole frame only if that finds nothing; the whole frame at the level
+        `whole_frame_level` gives for `height` (with `z_up_C`), else at full resolution.
+        `R_CT_reference`, `z_up_C`: see `pose`."""
         if prediction is not None:
             region = self.search_region(prediction, frame.lens)
             if region is not None:
                 found = self._detect_in(frame, frame.view(*region), R_CT_reference, z_up_C)
                 if found:
                     return found
-        return self._detect_in(frame, frame.view(0), R_CT_reference, z_up_C)
+        level = 0 if height is None or z_up_C is None else \
+            self.whole_frame_level(frame.lens, height, z_up_C)
+        return self._detect_in(frame, frame.view(level), R_CT_reference, z_up_C)
+
+    def whole_frame_level(self, lens: Lens, height: float, z_up_C: np.ndarray) -> int:
+        """The coarsest pyramid level (up to max_level) at which the pattern still spans
+        roi_min_side px wherever it lies in the frame, on a level platform at most `height` below
+        the camera (`z_up_C`: up in the camera frame). The rectified image of a plane at depth Z
+        along the optical axis scales by f / Z, foreshortened by at most the cosine of the
+        camera's tilt; Z is largest at a corner of the image."""
+        p = self._params
+        K = lens.K_rectified
+        corners = (np.array([[0, 0], [lens.width, 0], [0, lens.height],
+                             [lens.width, lens.height]]) - K[:2, 2]) / K[[0, 1], [0, 1]]
+        facing = -(np.column_stack([corners, np.ones(4)]) @ z_up_C)  # h / Z at each corner
+        tilt_cos = -z_up_C[2] / np.linalg.norm(z_up_C)
+        if height <= 0.0 or facing.min() <= 0.0 or tilt_cos <= 0.0:
+            return 0                                      # the plane's horizon is in view
+        side = K[0, 0] * self._corner_side * tilt_cos * facing.min() / height
+        return int(np.clip(np.floor(np.log2(max(side / p.roi_min_side, 1.0))), 0, p.max_level))
 
     def search_region(self, prediction: Prediction, lens: Lens) \
             -> tuple[int, tuple[float, float, float, float]] | None:

@@ -59,6 +59,9 @@ class TargetEstimatorParams:
     min_keypoint_depth: float = bounded(0.5, 0.0, 10.0, "m")
     reinit_after: float = bounded(0.5, 0.0, 60.0, "s")
     lost_timeout: float = bounded(2.0, 0.0, 600.0, "s")
+    # search the whole frame at the coarsest pyramid level that resolves the pattern from the
+    # camera's height above the ground (PatternDetector.whole_frame_level); off: full resolution
+    height_level_search: bool = False
     # unlabelled keypoint candidates (the geometric camera): detection's verification
     candidate_match_radius: float = bounded(3.0, 0.1, 100.0, "px")
     candidate_min_verified: int = bounded(4, 0, 5)
@@ -224,7 +227,9 @@ class TargetEstimator(LeafSystem):
                 if ekf.initialized else None
             z_up_C = X_WC.rotation().inverse().multiply(np.array([0.0, 0.0, 1.0]))
             detection = self._detect(frame, images, lens, reference, z_up_C,
-                                     _prediction(ekf, X_WC, frame.stamp))
+                                     _prediction(ekf, X_WC, frame.stamp),
+                                     height=X_WC.translation()[2]
+                                     if p.height_level_search else None)
             if detection is not None:
                 status[PERCEPTION_STATUS.slice("detections")] += 1
                 detected = 1
@@ -285,12 +290,17 @@ class TargetEstimator(LeafSystem):
         return associate(uv, self._project(X_CT_predicted, lens.K_rectified),
                          self._params.tracker.search_size / 2)
 
-    def _detect(self, frame, images, lens, R_CT_reference, z_up_C, prediction=None):
+    def _detect(self, frame, images, lens, R_CT_reference, z_up_C, prediction=None,
+                height=None):
         """(X_CT, [(keypoint id, rectified pixel)]) of the best detection, or None. `z_up_C`:
-        the state estimate's up in the camera frame (the platform is level)."""
+        the state estimate's up in the camera frame (the platform is level); `height`: the
+        camera's above the ground (z = 0 of the estimate's frame), which the platform's top is
+        above: the whole frame is searched at the coarsest level that still resolves the
+        pattern from there (`PatternDetector.whole_frame_level`)."""
         K = lens.K_rectified
         if images is not None:
-            detections = self._detector.detect(images, R_CT_reference, z_up_C, prediction)
+            detections = self._detector.detect(images, R_CT_reference, z_up_C, prediction,
+                                               height)
             return (detections[0].X_CT, list(zip(CORNER_IDS, detections[0].corners))) \
                 if detections else None
         uv = lens.rectify_points(frame.keypoints)
