@@ -124,3 +124,19 @@ def test_a_vehicle_rate_off_the_plant_step_is_refused_naming_the_key(key, value)
         config = dc.replace(config, **{part: dc.replace(getattr(config, part), **{field: value})})
     with pytest.raises(ConfigError, match=rf"'{key}' = {value} s is not a multiple"):
         check_rate_grid(config)
+
+
+def test_the_vio_flies_the_forward_camera_it_is_given():
+    """`fly_vio(camera=...)` (bench/vio.py --sources, alight vio-eval --rgbd-camera): the
+    scenario carries that camera as the VIO's, and the simulated vehicle gets it (the scenario's
+    default VIO camera replaced it before, so `--sources rendered` flew the geometric one)."""
+    from alight.diagrams.onboard.vio import load_rgbd_camera_params
+    from alight.diagrams.running.flights import vehicle_scenario
+    from alight.diagrams.scenario import vehicle_config
+    rendered = dc.replace(load_rgbd_camera_params(), source="rendered")
+    config = dc.replace(load_sim_vehicle_config(), rgbd_camera=rendered)
+    plan = WaypointPlan([[0.0, 0.0, 2.0]])
+    assert vehicle_config(vehicle_scenario(config, "waypoints", plan, vio_camera=rendered)
+                          ).rgbd_camera.source == "rendered"
+    assert vehicle_config(vehicle_scenario(config, "waypoints", plan)).rgbd_camera.source \
+        == "geometric"   # without it: the scenario's own (models/rgbd_camera_landing.yaml)

@@ -59,11 +59,15 @@ def add_mpc_loop(builder, config: SimVehicleConfig, reference_port, arm_port,
 
 
 def vehicle_scenario(config: SimVehicleConfig, stack: str, mission, seed: int = 0,
-                     max_duration: float = 300.0, settle_time: float = 1.0) -> Scenario:
-    """A scenario of the simulated vehicle `config` flying `stack` on mocap (tests, benches)."""
-    return Scenario(name=stack, random_seed=seed, vehicle=config,
-                    onboard=Onboard(stack=stack, linear_mpc=load_linear_mpc(),
-                                    linear_model=load_linear_model()),
+                     max_duration: float = 300.0, settle_time: float = 1.0,
+                     vio_camera: RgbdCameraParams | None = None) -> Scenario:
+    """A scenario of the simulated vehicle `config` flying `stack` on mocap (tests, benches).
+    `vio_camera`: the forward RGB-D camera the vehicle carries for the VIO (`vehicle_config`
+    puts `onboard.vio_camera` on it; default the scenario's)."""
+    onboard = Onboard(stack=stack, linear_mpc=load_linear_mpc(), linear_model=load_linear_model())
+    if vio_camera is not None:
+        onboard = dc.replace(onboard, vio_camera=vio_camera)
+    return Scenario(name=stack, random_seed=seed, vehicle=config, onboard=onboard,
                     mission=mission, scoring=Scoring(settle_time=settle_time),
                     simulator=SimulatorSettings(max_duration=max_duration))
 
@@ -71,12 +75,14 @@ def vehicle_scenario(config: SimVehicleConfig, stack: str, mission, seed: int = 
 def fly_waypoints(config: SimVehicleConfig, waypoints: np.ndarray, seed: int = 0,
                   run_dir=None, meshcat=None, record=None, realtime_rate: float = 0.0,
                   mission: WaypointMissionParams | None = None, max_duration: float = 300.0,
-                  odometry=None) -> RunLog:
+                  odometry=None, vio_camera: RgbdCameraParams | None = None) -> RunLog:
     """Takes off, visits the waypoints with the linear MPC, lands and disarms, stopping 1 s
     after (so that the logs show it at rest): the `waypoints` stack through the runner
-    (`odometry` as in `add_mpc_control`, default mocap; its own streams are logged)."""
+    (`odometry` as in `add_mpc_control`, default mocap; its own streams are logged;
+    `vio_camera` as in `vehicle_scenario`)."""
     plan = WaypointPlan(np.asarray(waypoints, float).tolist(), mission or WaypointMissionParams())
-    return run(vehicle_scenario(config, "waypoints", plan, seed, max_duration), run_dir, meshcat,
+    return run(vehicle_scenario(config, "waypoints", plan, seed, max_duration,
+                                vio_camera=vio_camera), run_dir, meshcat,
                record, realtime_rate, odometry, command="fly")
 
 
@@ -135,7 +141,8 @@ def fly_vio(config, waypoints, seed: int = 0, run_dir=None, closed_loop: bool = 
     if config.rgbd_camera.source == "none":
         raise ValueError("the VIO needs the forward RGB-D camera: rgbd_camera.source is none")
     return fly_waypoints(config, waypoints, seed=seed, run_dir=run_dir,
-                         odometry=VioRun(params, closed_loop, blackouts, MocapParams()))
+                         odometry=VioRun(params, closed_loop, blackouts, MocapParams()),
+                         vio_camera=config.rgbd_camera)
 
 
 def fly_profile(config: SimVehicleConfig, profile: PilotProfile, seed: int = 0,
