@@ -77,17 +77,19 @@ class Pattern:
         return np.array([[k, 0, -s / 2], [0, -k, s / 2], [0, 0, 1.0]])
 
     def _draw(self, size: int, supersample: int = 4) -> np.ndarray:
+        """Rendered at `supersample` x the size and area-averaged down; the pixel centres' x as
+        a row and y as a column, so that only the shapes' tests span the whole grid."""
         n = size * supersample
         s = self.params.side
         centres = (np.arange(n) + 0.5) / n * s - s / 2
-        x, y = np.meshgrid(centres, -centres)  # image rows go down: y decreases
+        x, y = centres[None, :], -centres[:, None]  # image rows go down: y decreases
         a = self.half_inner
         rho = np.hypot(x, y)
         w = self.params.bar_width / 2
         white = (np.abs(x) <= a) & (np.abs(y) <= a)
         ring = (rho <= self.params.ring_outer_radius) & (rho >= self.inner_radius)
         cross = (rho <= self.inner_radius) & ((np.abs(x) <= w) | (np.abs(y) <= w))
-        image = np.where(white & ~ring & ~cross, 255.0, 0.0).astype(np.float32)
+        image = np.where(white & ~ring & ~cross, np.float32(255.0), np.float32(0.0))
         return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA).round() \
             .astype(np.uint8)
 

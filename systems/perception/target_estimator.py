@@ -164,7 +164,7 @@ class TargetEstimator(LeafSystem):
         self._pattern = pattern
         self._rectifier = Rectifier(params.detector)
         self._detector = PatternDetector(pattern, params.detector)
-        self._tracker = None  # built at the first image (drawing its templates takes ~2 s)
+        self._tracker = None  # built at the first image (drawing its template takes ~0.3 s)
         self._frame = self.DeclareAbstractInputPort("down_image", AbstractValue.Make(CameraFrame()))
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._state = self.DeclareAbstractState(AbstractValue.Make(EstimatorState(
@@ -271,7 +271,7 @@ class TargetEstimator(LeafSystem):
     # --- steps ----------------------------------------------------------------------------------
     def _keypoint_tracker(self) -> KeypointTracker:
         """The keypoint tracker, built when first needed: only image frames use it (the geometric
-        source's candidates are associated by position), and drawing its templates takes 2 s."""
+        source's candidates are associated by position), and drawing its template takes 0.3 s."""
         if self._tracker is None:
             self._tracker = KeypointTracker(self._pattern, self._params.tracker)
         return self._tracker
