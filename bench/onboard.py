@@ -21,7 +21,8 @@ Per component (every onboard system's `compute_timer`, systems/timing.py, by par
 calls per second of flight, CPU seconds per second of flight, mean / p99 / max time per call
 and the typical interval between calls (the component's period: the median of the stamps'
 differences), then the rest of the diagram (Drake's dispatch, the systems without a timer: the
-mission, the IMU propagation, logging), the replay's own cost (reading frames), and ends with
+mission, the failsafe, logging; the VIO's IMU propagation is its `vio.propagation` row), the
+replay's own cost (reading frames), and ends with
 
     onboard total: X CPU s per s of flight
 

@@ -19,7 +19,7 @@ from pydrake.systems.framework import Diagram
 
 class ComputeTimer:
     """Wall-clock seconds of the measured calls of one system, each with the simulation time it
-    belongs to and the part measured ("tick"; the VIO's "frontend" and "backend").
+    belongs to and the part measured ("tick"; the VIO's "frontend", "backend" and "propagation").
 
     Like a system's solver workspace it serves one simulation at a time: the records of every
     simulation the system ran accumulate (in compact growing arrays) until `clear()`, which the
@@ -41,6 +41,10 @@ class ComputeTimer:
             yield
         finally:
             self.record(stamp, part, time.perf_counter() - start)
+
+    def clock(self) -> float:
+        """The clock `measure` reads [s], for a system that times a part by hand."""
+        return time.perf_counter()
 
     def record(self, stamp: float, part: str, seconds: float) -> None:
         if part not in self.parts:

@@ -4,7 +4,8 @@ GTSAM sliding window over L(3), IMU propagation) sampled at the IMU period.
 The estimator holds a GTSAM smoother, which cannot live in a Drake context: like the MPC's OSQP
 workspace it is a member of the system, reset by the initialization event; one system serves one
 simulation at a time. Its outputs are discrete state, so they are reproducible from the context;
-the front-end and back-end times go to its `compute_timer` (systems/timing.py), outside it.
+the front-end, back-end and propagation times go to its `compute_timer` (systems/timing.py),
+outside it.
 """
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -57,15 +58,21 @@ class VisualInertialOdometry(LeafSystem):
         state.get_mutable_abstract_state(self._last).set_value((-1, -np.inf))
 
     def _update(self, context, state):
+        """The IMU samples, the new frame if any (the estimator times its front and back end),
+        the propagated estimate; the rest of the tick is timed as part "propagation"."""
         seq, stamp = context.get_abstract_state(self._last).get_value()
-        samples = self._imu.Eval(context).newer_than(seq)
+        imu, frame = self._imu.Eval(context), self._rgbd.Eval(context)
+        timer = self.compute_timer
+        start, frame_seconds = timer.clock(), 0.0
+        samples = imu.newer_than(seq)
         if len(samples):
             self.estimator.add_imu(samples)
             seq = int(samples.seq[-1])
-        frame = self._rgbd.Eval(context)
         new_frame = frame.valid and frame.stamp > stamp
         if new_frame:
+            frame_start = timer.clock()
             self.estimator.add_frame(frame)
+            frame_seconds = timer.clock() - frame_start
             stamp = frame.stamp
         state.get_mutable_abstract_state(self._last).set_value((seq, stamp))
         previous = context.get_discrete_state(self._estimate).get_value()
@@ -76,6 +83,7 @@ class VisualInertialOdometry(LeafSystem):
         if new_frame or VIO_ODOMETRY.get(odometry, "status") != self.estimator.status:
             state.get_mutable_discrete_state(self._odometry).set_value(
                 self._odometry_vector(estimate))
+        timer.record(context.get_time(), "propagation", timer.clock() - start - frame_seconds)
 
     def _state_estimate(self, t: float, estimate, previous) -> np.ndarray:
         status = self.estimator.status
