@@ -11,6 +11,7 @@ The IMU frame S is the body frame B (the vehicle's IMU sits at its origin); X_BC
 calibrated mount.
 """
 import dataclasses as dc
+import functools
 
 import gtsam
 import numpy as np
@@ -65,6 +66,14 @@ class KeyframeState:
     bias: gtsam.imuBias.ConstantBias
     cov_pose: np.ndarray      # 6x6 [rotation, translation] in the body frame (GTSAM's tangent)
     cov_velocity: np.ndarray  # 3x3 in W
+
+    @functools.cached_property
+    def variances_W(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """R_WB and the variances in W of position, attitude and velocity (computed once: the
+        IMU propagation reads them at every IMU sample until the next keyframe)."""
+        R = self.nav.attitude().matrix()
+        return R, np.diag(R @ self.cov_pose[3:, 3:] @ R.T), \
+            np.diag(R @ self.cov_pose[:3, :3] @ R.T), np.diag(self.cov_velocity)
 
 
 class DivergedError(RuntimeError):

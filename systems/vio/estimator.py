@@ -225,18 +225,15 @@ class VioEstimator:
         """Variances (in E) of position, attitude and velocity after propagating the keyframe's
         marginals through `pim`: keyframe covariance, velocity uncertainty times time, the
         pre-integrated IMU noise, and gravity mis-compensated by the attitude error."""
-        R = state.nav.attitude().matrix()
+        R, var_p0, var_rot0, var_v0 = state.variances_W
         dt = pim.deltaTij()
-        cov_rot = R @ state.cov_pose[:3, :3] @ R.T
-        cov_p = R @ state.cov_pose[3:, 3:] @ R.T
         preint = pim.preintMeasCov()
-        tilt = cov_rot[0, 0] + cov_rot[1, 1]
+        tilt = var_rot0[0] + var_rot0[1]
         g = self.p.backend.gravity
-        var_p = np.diag(cov_p) + np.diag(state.cov_velocity) * dt ** 2 \
+        var_p = var_p0 + var_v0 * dt ** 2 \
             + np.diag(R @ preint[3:6, 3:6] @ R.T) + tilt * (0.5 * g * dt ** 2) ** 2
-        var_v = np.diag(state.cov_velocity) + np.diag(R @ preint[6:9, 6:9] @ R.T) \
-            + tilt * (g * dt) ** 2
-        var_rot = np.diag(cov_rot) + np.diag(R @ preint[:3, :3] @ R.T)
+        var_v = var_v0 + np.diag(R @ preint[6:9, 6:9] @ R.T) + tilt * (g * dt) ** 2
+        var_rot = var_rot0 + np.diag(R @ preint[:3, :3] @ R.T)
         return var_p, var_rot, var_v
 
     def estimate(self) -> Estimate | None:
