@@ -74,16 +74,25 @@ def test_the_target_estimate_from_rendered_images_holds_the_car_to_centimetres(r
 
 @pytest.mark.mission
 def test_the_vio_on_rendered_rgbd_flies_the_mission_with_centimetre_drift(rendered_landing):
-    """The VIO on rendered RGB-D frames over the whole mission (about 12 m flown over the field
-    ground with grain): ATE under 4 cm (seed 0: 2.0 cm; under the headlight seeds 0 and 1: 3.3
-    and 2.2 cm), final drift under 1 % of the distance (issue 20's goal; 0.52 %; 0.69 % both),
-    valid from its initialisation on, no window restart, over 100 features tracked (128). On the
-    down camera's smooth ground it restarted 3-4 times with an ATE of 0.7-1.7 m."""
+    """The VIO on rendered RGB-D frames while it flies the mission, to the touchdown (about 8 m
+    flown over the field ground with grain): ATE under 4 cm (seed 0: 1.5 cm), final drift under
+    1 % of the distance (issue 20's goal; seed 0 0.35 %, seeds 1 and 2 0.42 and 0.56 %), valid
+    from its initialisation on, no window restart, over 100 features tracked (128). On the down
+    camera's smooth ground it restarted 3-4 times with an ATE of 0.7-1.7 m.
+    After the touchdown the vehicle rides the car, and the forward camera partly sees the car,
+    still in its view while the IMU feels the car's motion, which no VIO can tell apart: the
+    estimate stays finite and valid, its error there depends on the realization (seed 1: 5 to
+    95 cm over those 2 s; docs/benchmarks.md "The option's default, closed loop")."""
     _, run = rendered_landing
-    vio = evaluate_vio(run)
-    assert vio["travelled"] > 10.0
+    touchdown = [at for at, mode, _ in mission_transitions(run) if mode == Mode.LANDED][0]
+    vio = evaluate_vio(run, until=touchdown)
+    assert vio["travelled"] > 7.5
     assert vio["ate_rmse"] < 0.04 and vio["final_drift"] < 0.01, vio
     assert vio["valid_fraction"] > 0.9 and vio["restarts"] == 0, vio
+    estimate = run["vio_estimate"]
+    after = estimate["time"] > touchdown
+    assert after.any() and (estimate["valid"][after] > 0.5).all()
+    assert np.isfinite(run.field("vio_estimate", "p_EB").to_numpy()[after.to_numpy()]).all()
     odometry = run["vio_odometry"]
     flying = odometry["time"] > 2.0
     assert odometry["tracked"][flying].median() > 100

@@ -297,3 +297,26 @@ def test_a_keypoint_under_the_landed_camera_is_not_fused():
     error, std, accepted = _lone_keypoint_pass(params.min_keypoint_depth)
     assert np.all(accepted == 0) and len(error) == 40   # valid for 2 s
     assert np.all(np.abs(error) < 3 * std) and np.abs(error).max() < 0.01
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_the_whole_frame_search_is_told_the_cameras_height_with_height_level_search(
+        monkeypatch, enabled):
+    """Without a target estimate, an image frame is searched whole; with `height_level_search`
+    (the default) the detector gets the camera's height above the ground from the state
+    estimate, so it can search at a coarser level (PatternDetector.whole_frame_level)."""
+    from alight.systems.perception.detector import PatternDetector
+    params = dc.replace(load_target_estimator_params(), height_level_search=enabled)
+    estimator = TargetEstimator(Pattern(load_pattern_params()), params)
+    heights = []
+    monkeypatch.setattr(PatternDetector, "detect",
+                        lambda self, frame, R_CT_reference=None, z_up_C=None, prediction=None,
+                        height=None: heights.append(height) or [])
+    lens = DownCameraParams(source="rendered").lens()
+    state = EstimatorState(TargetEkf(params.ekf), PoseHistory(params.pose_history))
+    X_WB = RigidTransform(RollPitchYaw(0.0, 0.1, 0.3), [2.0, -1.0, 4.5])
+    state.poses.add(1.0, X_WB.translation(), X_WB.rotation().ToQuaternion().wxyz(), np.zeros(3))
+    estimator.process(state, CameraFrame(stamp=1.0, calibration=lens.calibration(),
+                                         image=np.zeros((lens.height, lens.width), np.uint8)))
+    camera_height = (X_WB @ RigidTransform(lens.X_BC)).translation()[2]
+    assert heights == ([pytest.approx(camera_height)] if enabled else [None])

@@ -61,7 +61,7 @@ class TargetEstimatorParams:
     lost_timeout: float = bounded(2.0, 0.0, 600.0, "s")
     # search the whole frame at the coarsest pyramid level that resolves the pattern from the
     # camera's height above the ground (PatternDetector.whole_frame_level); off: full resolution
-    height_level_search: bool = False
+    height_level_search: bool = True
     # unlabelled keypoint candidates (the geometric camera): detection's verification
     candidate_match_radius: float = bounded(3.0, 0.1, 100.0, "px")
     candidate_min_verified: int = bounded(4, 0, 5)
