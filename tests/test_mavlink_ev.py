@@ -332,6 +332,12 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
     # While the odometry flows (after the mission ends, EKF2 dead-reckons on the IMU)
     local = local[local["time"] - local["last_fusion"] < 0.05]
     assert len(local) > 100 * 8
+    realtime = sim.metadata["realtime"]
+    if realtime["max_lag"] > 0.05:  # quiet: 0 overruns, max lag 7 ms; CI beside other tests:
+        # 602 of 1191 ticks over, 264 ms, and the velocity error's p99 at 0.150 (0.130-0.142 quiet)
+        pytest.skip(f"the simulated autopilot did not keep real time ({realtime['overruns']} "
+                    f"overruns of {realtime['ticks']} ticks, max lag "
+                    f"{1e3 * realtime['max_lag']:.0f} ms): its filter's accuracy is not judged")
     flying = sim["ground_truth"]
     error = local[["p_WB_0", "p_WB_1", "p_WB_2"]].to_numpy() \
         - true_at(flying, local["time"].to_numpy(), "p_WB")
