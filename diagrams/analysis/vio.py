@@ -28,7 +28,8 @@ def evaluate_vio(run, until: float | None = None) -> dict:
     odometry = run["vio_odometry"]
     backend = run.compute_seconds("vio", "backend")
     travelled = float(np.linalg.norm(np.diff(p_true, axis=0), axis=1).sum())
-    return {"valid_fraction": float(valid.sum() / max(window.sum(), 1)), "ate_rmse": ate_rmse(p, p_true),
+    return {"valid_fraction": float(valid.sum() / max(window.sum(), 1)),
+            "ate_rmse": ate_rmse(p, p_true),
             "rpe_per_m": rpe_per_metre(p, q, p_true, q_true, 1.0),
             "final_drift": float(np.linalg.norm(p[-1] - p_true[-1]) / max(travelled, 1e-9)),
             "travelled": travelled,

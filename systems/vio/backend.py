@@ -4,9 +4,10 @@ of L(2) and IMU pre-integration errors between keyframes (the cost J of L(3)), w
 marginalized so that the cost stays bounded.
 
 Built on GTSAM: iSAM2 over a fixed lag (`FixedLagSmoother`: everything older than `lag` is
-marginalized into a Gaussian prior), `CombinedImuFactor` (IMU pre-integration with bias random walk, Forster et
-al.), `GenericStereoFactor3D` (the real + virtual camera pair: u_left, u_virtual, v) for keypoints
-with depth and `GenericProjectionFactorCal3_S2` (4) for those without, both with a Huber loss.
+marginalized into a Gaussian prior), `CombinedImuFactor` (IMU pre-integration with bias random
+walk, Forster et al.), `GenericStereoFactor3D` (the real + virtual camera pair: u_left,
+u_virtual, v) for keypoints with depth and `GenericProjectionFactorCal3_S2` (4) for those
+without, both with a Huber loss.
 The IMU frame S is the body frame B (the vehicle's IMU sits at its origin); X_BC is the camera's
 calibrated mount.
 """

@@ -88,9 +88,8 @@ def lookup_depth(depth_image: np.ndarray, uv: np.ndarray, half: int) -> np.ndarr
     patch.sort(axis=1)
     count = np.count_nonzero(~np.isnan(patch), axis=1)
     rows = np.arange(len(pixel))
-    low = patch[rows, np.maximum(count - 1, 0) // 2]
-    high = patch[rows, count // 2 - (count == 0)]
-    return np.where(count > 0, (low + high) / 2, np.nan).astype(float)
+    middle = (patch[rows, (count - 1) // 2] + patch[rows, count // 2]) / 2  # NaN where count 0
+    return middle.astype(float)
 
 
 class KltTracker:
