@@ -1,3 +1,5 @@
+import fcntl
+
 import numpy as np
 import pytest
 
@@ -24,6 +26,19 @@ TAKEOFF = """
 {duration: 1.5, arm: true, vertical_acceleration: 0.0}
 """
 TAKEOFF_END = 5.0
+
+
+@pytest.fixture(autouse=True)
+def one_realtime_test_at_a_time(request, tmp_path_factory):
+    """Tests marked `realtime` (tests/mavlink_fake.py) hold an exclusive lock in the session's
+    temporary folder, shared by the xdist workers, while they run, so that two real-time
+    simulated autopilots never share the machine's cores."""
+    if request.node.get_closest_marker("realtime") is None:
+        yield
+        return
+    with open(tmp_path_factory.getbasetemp().parent / "realtime-tests.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
 
 
 @pytest.fixture(scope="session")

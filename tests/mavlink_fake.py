@@ -8,11 +8,19 @@ import sys
 import threading
 import time
 
+import pytest
 from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink
 
 from alight.hw import px4
 from alight.hw.sim_autopilot import AutopilotEndpoint, SimAutopilotParams, SimClock
+
+
+# Every test that runs `alight sim-autopilot` (a real-time loop in its own process) carries this
+# mark; conftest.py runs such tests one at a time across the xdist workers: two at once on a
+# 2-core machine starve both autopilots (measured: 943 ms behind real time, a landing tipped
+# over), and would judge the load instead of the code.
+realtime = pytest.mark.realtime
 
 
 def free_udp_port() -> int:

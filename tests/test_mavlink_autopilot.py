@@ -17,7 +17,7 @@ from alight.hw.frames import b_to_frd, q_wb_to_nf
 from alight.hw.link import CommandDenied, LinkParams, MavlinkLink
 from alight.hw.realtime import WallClock
 from alight.systems.boundary import FC_COMMAND, FC_STATUS, ActiveMode, CommandMode
-from mavlink_fake import SimAutopilotProcess, wait_for
+from mavlink_fake import SimAutopilotProcess, wait_for, realtime
 
 ENCODER = mavlink.MAVLink(None, 1, 191)
 STALE = 0.5        # models/sim_vehicle.yaml commander.stale_timeout
@@ -162,6 +162,7 @@ def sleep_sim(link, duration):
 
 
 @pytest.mark.mission
+@realtime
 def test_sim_autopilot_refuses_offboard_and_arm_then_fails_safe_when_offboard_is_lost(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot")
     link = None

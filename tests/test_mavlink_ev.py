@@ -38,7 +38,7 @@ from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, STATE_E
                                      TARGET_ESTIMATE, ActiveMode, ImuSamples)
 from alight.systems.rotations import heading_quaternion
 from alight.systems.thrust_curve import GRAVITY
-from mavlink_fake import FakeAutopilot, HilProcess, SimAutopilotProcess, free_udp_port
+from mavlink_fake import FakeAutopilot, HilProcess, SimAutopilotProcess, free_udp_port, realtime
 from test_mavlink_hil import fly_hil
 from test_mavlink_mavsdk import wait_for
 
@@ -319,6 +319,7 @@ def true_at(truth, times, field, size=3):
 
 
 @pytest.mark.mission
+@realtime
 def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_truth(tmp_path):
     """`alight hil --mission fly` sends its mocap estimate as ODOMETRY; the simulated PX4's
     fused local position (what LOCAL_POSITION_NED carries) follows the true position within
@@ -363,6 +364,7 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
 
 
 @pytest.mark.mission
+@realtime
 def test_mavsdk_on_the_ground_station_link_follows_a_hil_flight(tmp_path):
     """`alight hil --mission fly` flies over the companion link and forwards its estimate as
     ODOMETRY; a MAVSDK client (a ground station) on the autopilot's second link (`--gcs`) reads
@@ -453,6 +455,7 @@ class VisionCompanion:
 
 
 @pytest.mark.mission
+@realtime
 def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss(tmp_path):
     """MAVSDK (the peer) flies OFFBOARD attitude setpoints while a vision companion sends the
     world's mocap as ODOMETRY: `position_velocity_ned` follows the truth; offboard.stop() (Hold)
@@ -569,6 +572,7 @@ def test_mavsdk_sees_the_vision_position_and_px4_holds_on_offboard_stop_and_loss
 
 
 @pytest.mark.mission
+@realtime
 def test_hil_landing_sends_the_target_estimate_as_landing_target(tmp_path):
     """`alight hil --mission land` sends its target EKF's estimate as LANDING_TARGET; the
     simulated autopilot (a pymavlink receiver) logs each one PX4 would use (LOCAL_NED,

@@ -25,7 +25,7 @@ from alight.hw.ground_station import INT32, REAL32, GroundStationService, emulat
 from alight.hw.link import CommandDenied, LinkParams, MavlinkLink
 from alight.hw.realtime import WallClock
 from alight.systems.autopilot.config import FlightControllerParams
-from mavlink_fake import FrameEncoder, SimAutopilotProcess, free_udp_port, wait_for
+from mavlink_fake import FrameEncoder, SimAutopilotProcess, free_udp_port, wait_for, realtime
 
 GCS = FrameEncoder(255, 190)
 
@@ -120,6 +120,7 @@ def sleep_sim(link, duration):
 
 
 @pytest.mark.mission
+@realtime
 def test_mavsdk_as_a_ground_station_reads_and_sets_parameters_and_finds_no_mission(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot", duration=60.0)
     mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
@@ -207,6 +208,7 @@ def kinds(received) -> set:
 
 
 @pytest.mark.mission
+@realtime
 def test_a_ground_station_link_beside_the_companion_link(tmp_path):
     """`alight sim-autopilot --gcs`: a second MAVLink instance, as PX4 SITL's 14550 beside 14540.
     Each link has its own peer (a valid frame names it; another address is not answered), its own

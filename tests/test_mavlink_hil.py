@@ -24,13 +24,14 @@ from alight.diagrams.scenario import load_scenario
 from alight.diagrams.running.run_log import read_run
 from alight.systems.boundary import ActiveMode
 from alight.systems.mission.landing import Mode
-from mavlink_fake import HilProcess, SimAutopilotProcess, free_udp_port
+from mavlink_fake import HilProcess, SimAutopilotProcess, free_udp_port, realtime
 
 RATE = 1.0
 PROFILE = "hil_hover_profile.yaml"  # 15.6 s: climb to ~1 m, hover, descend, cut thrust
 
 
 @pytest.mark.mission
+@realtime
 def test_hil_hover_against_the_sim_autopilot_takes_off_hovers_and_lands(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot", realtime_rate=RATE)
     try:
@@ -128,6 +129,7 @@ WAYPOINTS = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]])
 
 
 @pytest.mark.mission
+@realtime
 def test_hil_fly_visits_the_waypoints_on_the_channel_mocap_and_lands(tmp_path):
     status, text, sim, onboard = fly_hil(tmp_path, (
         "--mission", "fly", "--waypoints", "; ".join(",".join(map(str, w)) for w in WAYPOINTS)))

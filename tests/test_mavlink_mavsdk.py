@@ -13,12 +13,13 @@ from mavsdk.plugins.telemetry import FlightMode, Telemetry
 
 from alight.diagrams.running.run_log import read_run
 from alight.systems.rotations import rotation_matrix
-from mavlink_fake import SimAutopilotProcess, wait_for
+from mavlink_fake import SimAutopilotProcess, wait_for, realtime
 
 pytestmark = pytest.mark.mission
 
 
 
+@realtime
 def test_mavsdk_reads_telemetry_arms_flies_offboard_attitude_and_lands(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot")
     mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))

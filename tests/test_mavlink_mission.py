@@ -7,11 +7,12 @@ import pytest
 from alight.diagrams.running.run_log import read_run
 from alight.hw.frame_channel import default_frame_address
 from alight.diagrams.running.mission import mavlink_mission
-from mavlink_fake import SimAutopilotProcess
+from mavlink_fake import SimAutopilotProcess, realtime
 
 pytestmark = pytest.mark.mission
 
 
+@realtime
 def test_mission_api_flies_the_sim_autopilot_over_mavlink(tmp_path):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot", duration=180.0, frames=True)
     try:

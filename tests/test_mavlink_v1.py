@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from alight.hw.link import LinkParams, MavlinkLink
 from alight.hw.realtime import WallClock
-from mavlink_fake import FakeAutopilot, FrameEncoder, SimAutopilotProcess
+from mavlink_fake import FakeAutopilot, FrameEncoder, SimAutopilotProcess, realtime
 
 ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
 MAGIC = {1: mavlink.PROTOCOL_MARKER_V1, 2: mavlink.PROTOCOL_MARKER_V2}
@@ -131,6 +131,7 @@ def test_the_autopilot_endpoint_acknowledges_a_command_in_the_clients_version(
         autopilot.close()
 
 
+@realtime
 def test_sim_autopilot_arms_for_a_mavlink1_client_and_disarms_once_it_speaks_2(
         tmp_path, pymavlink_client):
     server = SimAutopilotProcess(tmp_path / "sim-autopilot", duration=60.0)

@@ -13,12 +13,13 @@ import numpy as np
 import pandas as pd
 
 from alight.diagrams.analysis.landing import score_landing
+from alight.diagrams.analysis.vio import evaluate_vio
 from alight.diagrams.running.runner import run
 from alight.diagrams.scenario import Scenario, load_scenario
 
 COLUMNS = ["target_speed_setting", "seed", "success", "reason", "target_speed", "e_xy",
            "tracking_duration", "mission_time", "touchdown_speed", "peak_leg_force", "wall_time",
-           "run_dir", "e_ahead"]
+           "run_dir", "e_ahead", "vio_ate", "vio_drift", "vio_restarts"]
 
 
 @dc.dataclass(frozen=True)
@@ -45,7 +46,19 @@ def run_job(job: CampaignJob) -> dict:
     score = score_landing(run_log, scenario.scoring.impact.vertical_speed,
                           scenario.scoring.impact.horizontal_speed)
     return {"target_speed_setting": job.target_speed, "seed": job.seed, **dc.asdict(score),
+            **vio_figures(run_log, score.mission_time),
             "wall_time": time.perf_counter() - start, "run_dir": job.run_dir}
+
+
+def vio_figures(run_log, until: float) -> dict:
+    """The VIO's ATE [m] and final drift (fraction of the distance flown) from the start to
+    `until` (the touchdown, or the run's end), and its window restarts over the whole run; empty
+    when the mission flew another odometry (then the columns stay blank)."""
+    if "vio_estimate" not in run_log.streams:
+        return {}
+    vio = evaluate_vio(run_log, until=until)
+    return {"vio_ate": vio["ate_rmse"], "vio_drift": vio["final_drift"],
+            "vio_restarts": vio["restarts"]}
 
 
 def campaign_jobs(out_dir: Path, scenario: str, speeds, runs: int, seed: int = 0,
@@ -146,10 +159,12 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
     successful landings [cm], the median of their offset ahead of the platform's centre [cm]
     (a lead or lag of the reference), median tracking duration [s], mean measured target speed,
     and the median and worst peak force on one leg of every run that touched down [N] (the
-    structural limit is the airframe's `max_leg_force`)."""
+    structural limit is the airframe's `max_leg_force`), and over the runs that flew on VIO its
+    drift to the touchdown, median and worst [%]."""
     def one(group: pd.DataFrame) -> pd.Series:
         ok = group[group["success"].astype(bool)]
         forces = group["peak_leg_force"].dropna()
+        drift = group["vio_drift"].dropna() if "vio_drift" in group else pd.Series(dtype=float)
         return pd.Series({
             "runs": len(group), "landed": len(ok), "success_rate": len(ok) / len(group),
             "target_speed": group["target_speed"].mean(),
@@ -159,7 +174,9 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
             if len(ok) and "e_ahead" in ok else np.nan,
             "tracking_median_s": ok["tracking_duration"].median() if len(ok) else np.nan,
             "leg_force_median_n": forces.median() if len(forces) else np.nan,
-            "leg_force_worst_n": forces.max() if len(forces) else np.nan})
+            "leg_force_worst_n": forces.max() if len(forces) else np.nan,
+            "vio_drift_median_pct": 100 * drift.median() if len(drift) else np.nan,
+            "vio_drift_worst_pct": 100 * drift.max() if len(drift) else np.nan})
     return rows.groupby("target_speed_setting").apply(one, include_groups=False)
 
 
@@ -175,14 +192,16 @@ def write_summary(out_dir: Path, rows: pd.DataFrame) -> pd.DataFrame:
 
 def summary_markdown(summary: pd.DataFrame) -> str:
     lines = ["| target speed [m/s] | runs | landed | success | e_xy median [cm] | e_xy worst [cm] "
-             "| ahead median [cm] | tracking median [s] | peak leg force median / worst [N] |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| ahead median [cm] | tracking median [s] | peak leg force median / worst [N] "
+             "| VIO drift to touchdown median / worst [%] |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for speed, r in summary.iterrows():
         lines.append(f"| {speed:.1f} ({r.target_speed:.2f} measured) | {r.runs:.0f} | "
                      f"{r.landed:.0f} | {100 * r.success_rate:.0f} % | {r.e_xy_median_cm:.1f} | "
                      f"{r.e_xy_worst_cm:.1f} | {r.e_ahead_median_cm:+.1f} | "
                      f"{r.tracking_median_s:.2f} | "
-                     f"{r.leg_force_median_n:.0f} / {r.leg_force_worst_n:.0f} |")
+                     f"{r.leg_force_median_n:.0f} / {r.leg_force_worst_n:.0f} | "
+                     f"{r.vio_drift_median_pct:.2f} / {r.vio_drift_worst_pct:.2f} |")
     return "\n".join(lines) + "\n"
 
 
