@@ -28,6 +28,20 @@ TAKEOFF = """
 TAKEOFF_END = 5.0
 
 
+def pytest_collection_modifyitems(config, items):
+    """Spreads the `realtime` tests evenly through the run order (the others keep theirs), so
+    that the xdist workers, which take tests in order, seldom reach two at once and wait on
+    one_realtime_test_at_a_time's lock."""
+    realtime = [item for item in items if item.get_closest_marker("realtime")]
+    others = [item for item in items if not item.get_closest_marker("realtime")]
+    if not realtime or not others:
+        return
+    step = len(others) / len(realtime)
+    slots = {round((k + 0.5) * step): item for k, item in enumerate(realtime)}
+    items[:] = [ordered for index, item in enumerate(others)
+                for ordered in ([slots[index], item] if index in slots else [item])]
+
+
 @pytest.fixture(autouse=True)
 def one_realtime_test_at_a_time(request, tmp_path_factory):
     """Tests marked `realtime` (tests/mavlink_fake.py) hold an exclusive lock in the session's
