@@ -71,9 +71,11 @@ def test_follows_a_constant_velocity_target_with_the_l_6_3_lag():
     assert reason(b) == TargetReason.OK
 
 
-def test_starts_from_last_reference_and_catches_up_within_its_speed():
+def test_starts_from_last_reference_and_catches_up_within_its_speed_and_acceleration():
     """Activation (M Sec. 7.2): the first reference is the last one moved by at most one
-    catch-up step; the gap to the target closes at most at catch_up_speed relative to it."""
+    catch-up step, at the last one's velocity (a hover: at rest, not the target's velocity); the
+    reference then speeds up to the target with at most catch_up_acceleration, output as its
+    acceleration, and the gap closes at most at catch_up_speed relative to the target."""
     start = np.array([0.0, 0.0, HEIGHT])
     p0 = np.array([4.0, 3.0, 1.0])             # 5 m ahead, as when first detected (4.5 m)
     b = bench(TargetGoal.follow(), p0, V_T, start)
@@ -88,6 +90,13 @@ def test_starts_from_last_reference_and_catches_up_within_its_speed():
     assert gap[-1] < 0.25                                     # caught up: only the L lead left
     v = rows[:, REFERENCE.slice("v")]
     np.testing.assert_allclose(np.diff(p, axis=0)[10:], v[11:] * PERIOD, atol=2e-3)  # chi
+    assert np.linalg.norm(v[0]) <= PARAMS.catch_up_acceleration * PERIOD + 1e-9  # no step
+    a = rows[:, REFERENCE.slice("a")]
+    np.testing.assert_allclose(np.diff(v, axis=0), a[1:] * PERIOD, atol=1e-12)
+    assert np.linalg.norm(a, axis=1).max() <= PARAMS.catch_up_acceleration + 1e-9
+    assert np.linalg.norm(a[1:int(0.5 / PERIOD)], axis=1).min() > 0.9 * \
+        PARAMS.catch_up_acceleration                          # speeding up to the target
+    np.testing.assert_allclose(v[-1, :2], V_T[:2], atol=0.02)
 
 
 def test_landing_descents_stop_below_the_target_and_the_height_goal_is_held():

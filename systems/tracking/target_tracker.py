@@ -2,11 +2,18 @@
 (M Sec. 4, 7.2), at 100 Hz: the target estimate predicted by t_prediction with its velocity, then
 first-order low-pass filters on position and velocity (L Table 2 cut-offs), at a commanded height.
 
-Horizontally the reference is the filtered target (plus the goal's offset). It starts from
-`last_reference` (M Sec. 7.2: no jump): the gap between the reference it started from and the
-filtered target is a catch-up offset that shrinks with the time constant `catch_up_time`, at most
-`catch_up_speed` relative to the target, so the reference reaches the target without a step that
-the control manager's control-error watch would take for an emergency. Vertically (`TargetGoal`):
+Horizontally the reference follows the filtered target (plus the goal's offset) as a critically
+damped second-order system driven by a bounded acceleration: with o and o' its position and
+velocity less the filtered target's, o' follows -o / `catch_up_time` (at most `catch_up_speed`
+relative to the target) within catch_up_time / 4, with |o''| at most `catch_up_acceleration`,
+output as the reference's acceleration; once caught up (o = o' = 0) the reference is the L Fig. 8
+filtered target itself. It starts from `last_reference` in position *and velocity* (M Sec. 7.2:
+no jump), and its velocity stays continuous while the target EKF's settles after a detection or
+the goal's offset changes: the reference a vehicle hovering over a passing car gets is one it can
+fly (it speeds up to the car, falls behind, then closes the gap), not a velocity step. So the
+controllers that bound their error dynamics (the MPC force controller, M(48)-(51)) follow it too,
+and the control manager's control-error watch does not take the catch-up for an emergency.
+Vertically (`TargetGoal`):
 - `descent_rate` 0: the height where it started is held (L Sec. 6.4 Follow);
 - `descent_rate` > 0 without `height`: descends at that rate (Landing Phase 1/2), never more than
   `press_depth` below the target (pressed onto the platform, not through it), with the vertical
@@ -16,7 +23,7 @@ the control manager's control-error watch would take for an emergency. Verticall
 Without a usable target estimate (not valid, not finite, or in an estimator frame other than the
 current one or the one just left) the reference stops where it is and holds (TARGET_INVALID);
 when the target returns it starts again from there. A target estimate one frame switch behind
-is re-expressed with that switch; the filter states and the offset are re-expressed with chi.
+is re-expressed with that switch; the filter states are re-expressed with chi.
 """
 import dataclasses as dc
 import enum
@@ -85,17 +92,16 @@ class TargetTrackerParams:
     press_depth: float = bounded(0.5, 0.0, 5.0, "m")              # below the target, at most
     catch_up_speed: float = bounded(2.0, 0.05, 20.0, "m/s")       # relative to the target
     catch_up_time: float = bounded(0.5, 0.01, 10.0, "s")          # offset time constant
+    catch_up_acceleration: float = bounded(4.0, 0.1, 30.0, "m/s^2")  # |o''| at most
     max_descent_rate: float = bounded(5.0, 0.05, 20.0, "m/s")     # larger goals are refused
 
 
 @dc.dataclass
 class TargetMemory(ChiMemory):
-    """The L Fig. 8 filter states (predicted target position, velocity, in E), the catch-up
-    offset (x, y), whether the filters must start again from chi, the frame counter before the
-    last switch."""
+    """The L Fig. 8 filter states (predicted target position, velocity, in E), whether the
+    filters must start again on the target, the frame counter before the last switch."""
     p_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
     v_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
-    offset: np.ndarray = dc.field(default_factory=lambda: np.zeros(2))
     restart: bool = True
     old_frame_counter: float = np.nan
 
@@ -103,8 +109,9 @@ class TargetMemory(ChiMemory):
 class TargetTracker(ChiTracker):
     """Inputs  as `Tracker`, with `goal` a TargetGoal (None: hold); `target_estimate`
             TARGET_ESTIMATE (in E; unconnected: no target)
-    Outputs `reference` REFERENCE (chi of M(16) in E: position, velocity; acceleration and jerk
-            zero; heading held; stamped one period ahead); `tracker_status` TRACKER_STATUS
+    Outputs `reference` REFERENCE (chi of M(16) in E: position, velocity, the catch-up's
+            acceleration; jerk zero; heading held; stamped one period ahead); `tracker_status`
+            TRACKER_STATUS
             (reason: TargetReason)
     """
 
@@ -118,15 +125,12 @@ class TargetTracker(ChiTracker):
             return ChiReason.BAD_GOAL
         if not memory.active:
             memory.restart = True
-        elif goal is not None and memory.goal is not None:   # a new offset: no jump either
-            memory.offset += np.subtract(memory.goal.offset, goal.offset)
         return ChiReason.OK
 
     def _switch_frame(self, memory: TargetMemory, R_OldNew, p_OldNew) -> None:
         super()._switch_frame(memory, R_OldNew, p_OldNew)
         memory.p_filtered = reexpress_point(memory.p_filtered, R_OldNew, p_OldNew)
         memory.v_filtered = R_OldNew.T @ memory.v_filtered
-        memory.offset = (R_OldNew.T @ [*memory.offset, 0.0])[:2]
         memory.old_frame_counter = memory.frame_counter
 
     def _step(self, context, memory: TargetMemory, estimate) -> TargetReason:
@@ -140,28 +144,35 @@ class TargetTracker(ChiTracker):
         p_T, v_T = target
         params, goal = self.params, memory.goal
         if memory.restart:
-            self._restart(memory, p_T, v_T)
+            memory.p_filtered = predict_target(p_T, v_T, params.t_prediction)
+            memory.v_filtered = np.array(v_T, dtype=float)
         memory.p_filtered, memory.v_filtered = filter_reference(
             memory.p_filtered, memory.v_filtered, p_T, v_T, params.t_prediction,
             params.cutoff_position, params.cutoff_velocity, self.period)
-        catch_up = -clip_norm(memory.offset / params.catch_up_time, params.catch_up_speed)
-        memory.offset = memory.offset + catch_up * self.period
+        memory.restart = False
+        p_xy, v_xy, a_xy = self._catch_up(memory)
         z, v_z, descending = self._vertical(goal, P.get(chi, "p")[2], memory.p_filtered[2],
                                             memory.v_filtered[2])
-        chi[P.slice("p")] = [*(memory.p_filtered[:2] + goal.offset + memory.offset), z]
-        chi[P.slice("v")] = [*(memory.v_filtered[:2] + catch_up), v_z]
-        for field in ("a", "j", "heading_rate"):
+        chi[P.slice("p")] = [*p_xy, z]
+        chi[P.slice("v")] = [*v_xy, v_z]
+        chi[P.slice("a")] = [*a_xy, 0.0]
+        for field in ("j", "heading_rate"):
             chi[P.slice(field)] = 0.0
         return TargetReason.DESCENDING if descending else TargetReason.OK
 
-    def _restart(self, memory: TargetMemory, p_T, v_T) -> None:
-        """The filters on the predicted target (L Sec. 6.4 Follow) but the velocity from chi, and
-        the offset that puts the reference where chi is."""
-        memory.p_filtered = predict_target(p_T, v_T, self.params.t_prediction)
-        memory.v_filtered = REFERENCE.get(memory.chi, "v").copy()
-        memory.offset = REFERENCE.get(memory.chi, "p")[:2] - memory.p_filtered[:2] \
-            - memory.goal.offset
-        memory.restart = False
+    def _catch_up(self, memory: TargetMemory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One period of the catch-up's second-order law (module docstring) from chi, the last
+        reference, toward the filtered target plus the goal's offset: the reference's horizontal
+        (position, velocity, acceleration). Its velocity is continuous also while the target
+        EKF's velocity settles after a detection."""
+        params, chi, dt = self.params, memory.chi, self.period
+        p, v = REFERENCE.get(chi, "p")[:2], REFERENCE.get(chi, "v")[:2]
+        offset = p + v * dt - memory.p_filtered[:2] - memory.goal.offset
+        rate = -clip_norm(offset / params.catch_up_time, params.catch_up_speed)
+        acceleration = clip_norm((rate - (v - memory.v_filtered[:2])) /
+                                 (params.catch_up_time / 4.0), params.catch_up_acceleration)
+        v = v + acceleration * dt
+        return p + v * dt, v, acceleration
 
     def _vertical(self, goal: TargetGoal, z: float, z_T: float,
                   v_z_T: float) -> tuple[float, float, bool]:
