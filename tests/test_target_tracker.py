@@ -79,7 +79,7 @@ def test_starts_from_last_reference_and_catches_up_within_its_speed_and_accelera
     start = np.array([0.0, 0.0, HEIGHT])
     p0 = np.array([4.0, 3.0, 1.0])             # 5 m ahead, as when first detected (4.5 m)
     b = bench(TargetGoal.follow(), p0, V_T, start)
-    rows = b.run(5.0, each=moving_target(p0, V_T))
+    rows = b.run(6.0, each=moving_target(p0, V_T))
     p = rows[:, REFERENCE.slice("p")]
     assert np.linalg.norm(p[0] - start) <= PARAMS.catch_up_speed * PERIOD + 1e-9
     t = np.arange(len(rows)) * PERIOD
@@ -100,21 +100,28 @@ def test_starts_from_last_reference_and_catches_up_within_its_speed_and_accelera
 
 
 def test_landing_descents_stop_below_the_target_and_the_height_goal_is_held():
-    """Landing phases (L Sec. 6.4): down at the rate, the vertical velocity the target's less
+    """Landing phases (L Sec. 6.4): down at the rate, reached from the hover with at most
+    vertical_acceleration (output as the reference's), the vertical velocity the target's less
     it, never more than press_depth below the target; a height goal is reached and held."""
     p_T = np.array([0.0, 0.0, 1.0])
     b = bench(TargetGoal.descend(1.3), p_T)
     rows = b.run(1.0)
-    z = rows[:, REFERENCE.slice("p")][:, 2]
-    np.testing.assert_allclose(np.diff(z), -1.3 * PERIOD, atol=1e-9)
+    z, v_z = rows[:, REFERENCE.slice("p")][:, 2], rows[:, REFERENCE.slice("v")][:, 2]
+    a_z = rows[:, REFERENCE.slice("a")][:, 2]
+    ramp = 1.3 / PARAMS.vertical_acceleration                     # 0.65 s from the hover
+    assert np.abs(np.diff(v_z)).max() <= PARAMS.vertical_acceleration * PERIOD + 1e-9
+    np.testing.assert_allclose(np.diff(v_z), a_z[1:] * PERIOD, atol=1e-12)
+    np.testing.assert_allclose(np.diff(z), v_z[1:] * PERIOD, atol=1e-12)
+    np.testing.assert_allclose(np.diff(z)[int(ramp / PERIOD) + 1:], -1.3 * PERIOD, atol=1e-9)
     assert REFERENCE.get(rows[-1], "v")[2] == pytest.approx(-1.3)
     assert reason(b) == TargetReason.DESCENDING
     rows = b.run(4.0)
     assert REFERENCE.get(rows[-1], "p")[2] == pytest.approx(p_T[2] - PARAMS.press_depth)
     b.set("goal", TargetGoal(descent_rate=1.0, height=2.0))       # back up to 2 m above it
-    rows = b.run(3.0)
+    rows = b.run(4.0)
     z = rows[:, REFERENCE.slice("p")][:, 2]
     assert np.diff(z).max() <= 1.0 * PERIOD + 1e-9
+    assert z.max() <= p_T[2] + 2.0 + 1e-9     # braked onto it, not over
     assert z[-1] == pytest.approx(p_T[2] + 2.0)
     assert REFERENCE.get(rows[-1], "v")[2] == pytest.approx(0.0)
     assert reason(b) == TargetReason.OK

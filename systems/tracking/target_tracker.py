@@ -13,12 +13,16 @@ the goal's offset changes: the reference a vehicle hovering over a passing car g
 fly (it speeds up to the car, falls behind, then closes the gap), not a velocity step. So the
 controllers that bound their error dynamics (the MPC force controller, M(48)-(51)) follow it too,
 and the control manager's control-error watch does not take the catch-up for an emergency.
-Vertically (`TargetGoal`):
+
+Vertically (`TargetGoal`) its speed relative to the target moves to the goal's with at most
+`vertical_acceleration` (output as the reference's vertical acceleration), so a descent starts
+without a velocity step either:
 - `descent_rate` 0: the height where it started is held (L Sec. 6.4 Follow);
 - `descent_rate` > 0 without `height`: descends at that rate (Landing Phase 1/2), never more than
   `press_depth` below the target (pressed onto the platform, not through it), with the vertical
   velocity the target's less the rate, as the landing mission's (L Sec. 6.4);
-- `descent_rate` > 0 with `height`: goes at that rate to `height` above the target and follows it.
+- `descent_rate` > 0 with `height`: goes at that rate to `height` above the target (braking onto
+  it) and follows it.
 
 Without a usable target estimate (not valid, not finite, or in an estimator frame other than the
 current one or the one just left) the reference stops where it is and holds (TARGET_INVALID);
@@ -92,16 +96,19 @@ class TargetTrackerParams:
     press_depth: float = bounded(0.5, 0.0, 5.0, "m")              # below the target, at most
     catch_up_speed: float = bounded(2.0, 0.05, 20.0, "m/s")       # relative to the target
     catch_up_time: float = bounded(0.5, 0.01, 10.0, "s")          # offset time constant
-    catch_up_acceleration: float = bounded(4.0, 0.1, 30.0, "m/s^2")  # |o''| at most
+    catch_up_acceleration: float = bounded(2.5, 0.1, 30.0, "m/s^2")  # |o''| at most
+    vertical_acceleration: float = bounded(2.0, 0.1, 30.0, "m/s^2")  # on the vertical speed
     max_descent_rate: float = bounded(5.0, 0.05, 20.0, "m/s")     # larger goals are refused
 
 
 @dc.dataclass
 class TargetMemory(ChiMemory):
-    """The L Fig. 8 filter states (predicted target position, velocity, in E), whether the
-    filters must start again on the target, the frame counter before the last switch."""
+    """The L Fig. 8 filter states (predicted target position, velocity, in E), the reference's
+    vertical speed relative to the target, whether the filters must start again on the target,
+    the frame counter before the last switch."""
     p_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
     v_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
+    vertical_speed: float = 0.0          # m/s, the reference's relative to the target
     restart: bool = True
     old_frame_counter: float = np.nan
 
@@ -142,20 +149,21 @@ class TargetTracker(ChiTracker):
                 chi[P.slice(field)] = 0.0
             return TargetReason.OK if target is not None else TargetReason.TARGET_INVALID
         p_T, v_T = target
-        params, goal = self.params, memory.goal
-        if memory.restart:
+        params = self.params
+        if memory.restart:   # on from chi: its position and velocity (M Sec. 7.2)
             memory.p_filtered = predict_target(p_T, v_T, params.t_prediction)
             memory.v_filtered = np.array(v_T, dtype=float)
+            memory.vertical_speed = float(REFERENCE.get(chi, "v")[2] - v_T[2])
         memory.p_filtered, memory.v_filtered = filter_reference(
             memory.p_filtered, memory.v_filtered, p_T, v_T, params.t_prediction,
             params.cutoff_position, params.cutoff_velocity, self.period)
         memory.restart = False
         p_xy, v_xy, a_xy = self._catch_up(memory)
-        z, v_z, descending = self._vertical(goal, P.get(chi, "p")[2], memory.p_filtered[2],
-                                            memory.v_filtered[2])
+        z, v_z, a_z, descending = self._vertical(memory, memory.p_filtered[2],
+                                                 memory.v_filtered[2])
         chi[P.slice("p")] = [*p_xy, z]
         chi[P.slice("v")] = [*v_xy, v_z]
-        chi[P.slice("a")] = [*a_xy, 0.0]
+        chi[P.slice("a")] = [*a_xy, a_z]
         for field in ("j", "heading_rate"):
             chi[P.slice(field)] = 0.0
         return TargetReason.DESCENDING if descending else TargetReason.OK
@@ -174,16 +182,32 @@ class TargetTracker(ChiTracker):
         v = v + acceleration * dt
         return p + v * dt, v, acceleration
 
-    def _vertical(self, goal: TargetGoal, z: float, z_T: float,
-                  v_z_T: float) -> tuple[float, float, bool]:
-        """(height, vertical velocity, descending) of the reference after one period."""
-        rate = goal.descent_rate
+    def _vertical(self, memory: TargetMemory, z_T: float,
+                  v_z_T: float) -> tuple[float, float, float, bool]:
+        """(height, vertical velocity, vertical acceleration, descending) of the reference after
+        one period: its vertical speed relative to the target moves toward the goal's (0 held,
+        -descent_rate, or braking onto the goal's height) by at most `vertical_acceleration`
+        per second; a descent stops `press_depth` below the target."""
+        goal, dt = memory.goal, self.period
+        z, speed = REFERENCE.get(memory.chi, "p")[2], memory.vertical_speed
+        rate, brake = goal.descent_rate, self.params.vertical_acceleration
         if rate == 0.0:
-            return z, 0.0, False
-        if goal.height is None:
-            return max(z - rate * self.period, z_T - self.params.press_depth), v_z_T - rate, True
-        step = float(np.clip(z_T + goal.height - z, -rate * self.period, rate * self.period))
-        return z + step, v_z_T + step / self.period, step < 0.0
+            wanted = 0.0
+        elif goal.height is None:
+            wanted = -rate
+        else:
+            gap = z_T + goal.height - z
+            # the speed from which steps shrinking by brake dt stop on the gap: v (v + a dt) / 2a
+            stop = 0.5 * (np.sqrt((brake * dt) ** 2 + 8.0 * brake * abs(gap)) - brake * dt)
+            wanted = float(np.sign(gap)) * min(rate, stop, abs(gap) / dt)
+        change = float(np.clip(wanted - speed, -brake * dt, brake * dt))
+        memory.vertical_speed = speed + change
+        z_new = z + memory.vertical_speed * dt
+        floor = z_T - self.params.press_depth
+        if rate > 0.0 and goal.height is None and z_new <= floor:   # pressed: stopped there
+            z_new, change, memory.vertical_speed = floor, -speed, 0.0
+        descending = (rate > 0.0 and goal.height is None) or memory.vertical_speed < 0.0
+        return z_new, v_z_T + memory.vertical_speed, change / dt, descending
 
     def _target_in_frame(self, context, memory: TargetMemory, estimate):
         """(p_WT, v_WT) in the current estimator frame, or None when not usable."""
