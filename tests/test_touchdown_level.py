@@ -15,7 +15,7 @@ from pydrake.systems.analysis import Simulator
 from alight.diagrams.analysis.landing import MAX_TILT, score_landing
 from alight.diagrams.running.runner import run as run_scenario
 from alight.diagrams.scenario import load_scenario, vehicle_config
-from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, TARGET_ESTIMATE, CommandMode
 from alight.systems.control.touchdown_level import TouchdownLevel, TouchdownLevelParams
 from alight.systems.mission.landing import MISSION_STATUS, Mode
 from alight.systems.rotations import heading, rotation_matrix, tilt_deg
@@ -52,12 +52,13 @@ def test_a_touchdown_tilted_into_the_air_tips_over_and_a_level_one_stays_upright
     assert level[-1] < 1.0                 # resting on its four legs
 
 
-def levelled(mode: Mode, height: float, valid: float = 1.0, level_height: float = 1.0):
+def levelled(mode: Mode, height: float, valid: float = 1.0, level_height: float = 1.0,
+             command_mode: CommandMode = CommandMode.ATTITUDE_THRUST):
     dut = TouchdownLevel(TouchdownLevelParams(height=level_height), period=0.01)
     context = dut.CreateDefaultContext()
     q_WD = RollPitchYaw(0.1, -0.2, 0.7).ToQuaternion().wxyz()
     dut.GetInputPort("fc_command").FixValue(context, FC_COMMAND.vector(
-        stamp=3.0, mode=1.0, q_WD=q_WD, w_D=[0.1, 0.2, 0.3], thrust=0.6, arm=1.0))
+        stamp=3.0, mode=command_mode, q_WD=q_WD, w_D=[0.1, 0.2, 0.3], thrust=0.6, arm=1.0))
     dut.GetInputPort("mission_status").FixValue(context, MISSION_STATUS.vector(mode=mode))
     dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(
         p_EB=[5.0, 2.0, 1.0 + height]))
@@ -66,7 +67,7 @@ def levelled(mode: Mode, height: float, valid: float = 1.0, level_height: float 
     unlevelled = dut.GetOutputPort("fc_command").Eval(context).copy()
     Simulator(dut, context).AdvanceTo(0.005)    # the decision of the tick at t = 0
     assert np.array_equal(unlevelled, FC_COMMAND.vector(
-        stamp=3.0, mode=1.0, q_WD=RollPitchYaw(0.1, -0.2, 0.7).ToQuaternion().wxyz(),
+        stamp=3.0, mode=command_mode, q_WD=RollPitchYaw(0.1, -0.2, 0.7).ToQuaternion().wxyz(),
         w_D=[0.1, 0.2, 0.3], thrust=0.6, arm=1.0))    # nothing is levelled before a decision
     return dut.GetOutputPort("fc_command").Eval(context)
 
@@ -81,6 +82,17 @@ def test_under_the_height_in_phase_2_the_command_is_level_at_its_heading(mode):
     assert np.all(FC_COMMAND.get(command, "w_D") == 0.0)
     for field in ("stamp", "mode", "thrust", "arm"):
         assert FC_COMMAND.get(command, field) == FC_COMMAND.get(levelled(Mode.FOLLOW, 0.9), field)
+
+
+def test_a_rates_command_is_levelled_as_an_attitude_command():
+    """The force controllers (M Sec. 5) send RATES_THRUST: levelled only in its rates (zero) it
+    held the tilt it had (20 deg at a windy managed se3 touchdown, which tipped over); it goes
+    out as a level ATTITUDE_THRUST command."""
+    command = levelled(Mode.LANDING_P2, height=0.9, command_mode=CommandMode.RATES_THRUST)
+    assert FC_COMMAND.get(command, "mode") == CommandMode.ATTITUDE_THRUST
+    assert tilt_deg(FC_COMMAND.get(command, "q_WD")) == pytest.approx(0.0, abs=1e-9)
+    assert np.all(FC_COMMAND.get(command, "w_D") == 0.0)
+    assert FC_COMMAND.get(command, "thrust") == 0.6 and FC_COMMAND.get(command, "arm") == 1.0
 
 
 @pytest.mark.parametrize("mode, height, valid, level_height", [

@@ -15,7 +15,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, TARGET_ESTIMATE
+from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, TARGET_ESTIMATE, CommandMode
 from alight.systems.mission.landing import MISSION_STATUS, Mode
 from alight.systems.params import bounded
 from alight.systems.rotations import heading, heading_quaternion, rotation_matrix
@@ -31,10 +31,12 @@ class TouchdownLevelParams:
 
 
 def level_attitude(command: np.ndarray) -> np.ndarray:
-    """`command` (FC_COMMAND) with its attitude level at its own heading, no feed-forward rate;
-    thrust, mode and arm unchanged."""
+    """`command` (FC_COMMAND) with its attitude level at its own heading, no feed-forward rate,
+    as an attitude command (ATTITUDE_THRUST: a RATES_THRUST command of the force controllers,
+    M Sec. 5, levelled only in its rates would hold the tilt it has); thrust and arm unchanged."""
     levelled = np.array(command, dtype=float)
     q_WD = FC_COMMAND.get(command, "q_WD")
+    levelled[FC_COMMAND.slice("mode")] = CommandMode.ATTITUDE_THRUST
     levelled[FC_COMMAND.slice("q_WD")] = heading_quaternion(heading(rotation_matrix(q_WD)))
     levelled[FC_COMMAND.slice("w_D")] = 0.0
     return levelled
