@@ -218,8 +218,8 @@ def test_a_long_map_is_seen_as_projecting_all_of_it_would_see_it():
         expected = candidates[~hidden].tolist()
         visible, uv_seen, z_seen = camera.visible(X_WC)
         assert visible == expected
-        np.testing.assert_allclose(uv_seen[visible], uv[visible], atol=1e-9)
-        np.testing.assert_allclose(z_seen[visible], p_CL[visible, 2], atol=1e-9)
+        np.testing.assert_allclose(uv_seen, uv[visible].reshape(-1, 2), atol=1e-9)
+        np.testing.assert_allclose(z_seen, p_CL[visible, 2], atol=1e-9)
         seen += len(visible)
     assert seen > 40 * 100  # the poses do see the map
 

@@ -64,26 +64,21 @@ class RunFolderWarning(UserWarning):
     """A stream read back in part: its run did not finish, or its file ends cut short."""
 
 
-class VectorStreamSink(LeafSystem):
-    """Input `data` (`size`); records [time, data] every `period` and at a forced publish (as
-    Drake's VectorLogSink) into a buffer that `take()` empties: the run folder writer takes the
-    rows at every flush, so the sink holds at most one flush period of them (all of them while
-    no run folder is open)."""
+class StreamBuffer:
+    """The rows [time, value...] of one vector stream recorded and not taken yet: `take()`
+    empties it. The run folder writer takes the rows at every flush, so a buffer holds at most
+    one flush period of them (all of them while no run folder is open)."""
 
-    def __init__(self, size: int, period: float):
-        super().__init__()
-        self._data = self.DeclareVectorInputPort("data", size)
-        self.DeclarePeriodicPublishEvent(period, 0.0, self._record)
-        self.DeclareForcedPublishEvent(self._record)
+    def __init__(self, size: int):
         self._rows = np.empty((128, 1 + size))
         self.pending = 0  # rows recorded and not taken yet
 
-    def _record(self, context):
+    def append(self, t: float, value: np.ndarray) -> None:
         if self.pending == len(self._rows):
             self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
         row = self._rows[self.pending]
-        row[0] = context.get_time()
-        row[1:] = self._data.Eval(context)
+        row[0] = t
+        row[1:] = value
         self.pending += 1
 
     def take(self) -> np.ndarray:
@@ -93,9 +88,44 @@ class VectorStreamSink(LeafSystem):
         return rows
 
 
+class VectorStreamRecorder(LeafSystem):
+    """The run's vector streams, one input port each (named as the stream, added by `add`):
+    records [time, value] of the streams of one period at that period's publish event (every
+    `period` from t = 0, as Drake's VectorLogSink) and of all of them at a forced publish, into
+    their `StreamBuffer`s. One Python call per period and tick for all its streams, where one
+    sink per stream made one call each (a landing logs ten streams at 100 Hz)."""
+
+    def __init__(self):
+        super().__init__()
+        self._groups: dict[float, list] = {}   # period -> [(input port, buffer), ...]
+        self.DeclareForcedPublishEvent(self._record_all)
+
+    def add(self, name: str, size: int, period: float):
+        """(the new input port `name`, its StreamBuffer), recorded every `period`."""
+        port = self.DeclareVectorInputPort(name, size)
+        buffer = StreamBuffer(size)
+        group = self._groups.get(period)
+        if group is None:
+            group = self._groups[period] = []
+            self.DeclarePeriodicPublishEvent(
+                period, 0.0, lambda context, group=group: self._record(context, group))
+        group.append((port, buffer))
+        return port, buffer
+
+    @staticmethod
+    def _record(context, group) -> None:
+        t = context.get_time()
+        for port, buffer in group:
+            buffer.append(t, port.Eval(context))
+
+    def _record_all(self, context) -> None:
+        for group in self._groups.values():
+            self._record(context, group)
+
+
 class ImuLogSink(LeafSystem):
     """Input `imu` ImuSamples; records each sample once (by sequence number) at every `period`
-    and at a forced publish, into a buffer that `take()` empties (as VectorStreamSink)."""
+    and at a forced publish, into a buffer that `take()` empties (as StreamBuffer)."""
 
     def __init__(self, period: float):
         super().__init__()
@@ -160,18 +190,25 @@ class RunLoggers:
     """The sinks of a run's streams, the compute timers of parts outside the diagram (by
     component name; those of its systems are collected from the diagram), the writer that
     flushes them, and the run folder they go to once `open_run_folder` has opened it."""
-    vector_sinks: dict[str, tuple[VectorStreamSink, VectorLayout]]
+    vector_sinks: dict[str, tuple[StreamBuffer, VectorLayout]]
     imu_sink: ImuLogSink | None
     timers: dict[str, ComputeTimer] = dc.field(default_factory=dict)
     writer: RunFolderWriter | None = None
     folder: "RunFolder | None" = None
     diagram_timers: dict[str, ComputeTimer] = dc.field(default_factory=dict)
 
+    recorder: VectorStreamRecorder | None = None
+
     def add(self, builder, name: str, port, layout: VectorLayout, period: float = 0.01) -> None:
-        """Logs one more vector port as stream `name`."""
-        sink = builder.AddNamedSystem(f"log_{name}", VectorStreamSink(layout.size, period))
-        builder.Connect(port, sink.get_input_port())
-        self.vector_sinks[name] = (sink, layout)
+        """Logs one more vector port as stream `name` (on the run's `VectorStreamRecorder`,
+        added to `builder` with the first stream)."""
+        if name in self.vector_sinks:
+            raise ValueError(f"the run already logs a stream named {name!r}")
+        if self.recorder is None:
+            self.recorder = builder.AddNamedSystem("log_streams", VectorStreamRecorder())
+        recorder_port, buffer = self.recorder.add(name, layout.size, period)
+        builder.Connect(port, recorder_port)
+        self.vector_sinks[name] = (buffer, layout)
 
     def all_timers(self) -> dict[str, ComputeTimer]:
         return {**self.diagram_timers, **self.timers}

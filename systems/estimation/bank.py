@@ -25,7 +25,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RotationMatrix
 from pydrake.systems.framework import LeafSystem
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from alight.systems.boundary import FC_ATTITUDE, STATE_ESTIMATE, VectorLayout
 from alight.systems.estimation.arbiter import ArbiterParams, Health, choose
@@ -233,7 +233,9 @@ class EstimatorBank(LeafSystem):
         super().__init__()
         self.params = params
         self._fusions = check_bank(params)
-        self._gate = {k: chi2.ppf(params.arbiter.gate_probability, k) for k in (1, 2, 3)}
+        # the chi-square quantiles (chi2.ppf p = chdtri(k, 1 - p))
+        self._gate = {k: float(chdtri(k, 1.0 - params.arbiter.gate_probability))
+                      for k in (1, 2, 3)}
         self.status = status_layout(params)
         self.filter_names = [f.name for f in params.filters]
         self._clip = {s.name: s.gate_action == "clip" for s in params.sources}

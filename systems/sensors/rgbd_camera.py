@@ -194,10 +194,13 @@ class GeometricRgbdCamera(TimedCamera):
         if rng.random() < p.frame_dropout:
             return None, {}, next_id, np.zeros(0, bool)
         visible, uv, z = self.visible(X_WC)
+        index = np.asarray(visible, dtype=int)   # increasing: a landmark's row is a search away
+        row = lambda landmarks: np.searchsorted(index, landmarks)  # noqa: E731
         tracked = [i for i in visible if i in tracks]
         # One draw per tracked landmark, in order (as many draws as one call each).
         kept = [i for i, u in zip(tracked, rng.random(len(tracked))) if u >= p.track_loss]
-        fresh = self._spread([i for i in visible if i not in tracks], kept, uv, rng)
+        fresh = self._spread([i for i in visible if i not in tracks], kept,
+                             lambda landmarks: uv[row(landmarks)], rng)
         selected = np.array((kept + fresh)[:p.max_features], dtype=int)
         new_tracks = {i: tracks[i] for i in kept}
         for i in selected[len(kept):]:
@@ -210,7 +213,7 @@ class GeometricRgbdCamera(TimedCamera):
         jump = (rng.random(n) < p.outlier_probability) & (np.arange(n) < len(kept))
         length = rng.uniform(*p.outlier_error, n)
         angle = rng.uniform(0.0, 2 * np.pi, n)
-        z_true = z[selected]
+        z_true = z[row(selected)]
         if jump.any():
             moved = keypoints[jump] + length[jump, None] * np.column_stack(
                 [np.cos(angle[jump]), np.sin(angle[jump])])
@@ -229,13 +232,15 @@ class GeometricRgbdCamera(TimedCamera):
                             keypoint_ids=ids, depth=depth)
         return frame, new_tracks, next_id, jump
 
-    def _spread(self, fresh: list[int], kept: list[int], uv: np.ndarray, rng) -> list[int]:
+    def _spread(self, fresh: list[int], kept: list[int], pixels, rng) -> list[int]:
         """New features ordered as a detector with a bucketing grid picks them: evenly over the
-        image (GRID cells, the emptiest first), not where landmarks crowd (near the horizon)."""
-        cells = lambda ids: (np.clip(uv[ids, 0] * GRID[0] / self._lens.width, 0, GRID[0] - 1)
-                             .astype(int) * GRID[1] + np.clip(uv[ids, 1] * GRID[1]
-                                                              / self._lens.height, 0,
-                                                              GRID[1] - 1).astype(int))
+        image (GRID cells, the emptiest first), not where landmarks crowd (near the horizon).
+        `pixels(landmarks)`: their noise-free pixels (N, 2)."""
+        def cells(ids):
+            uv = pixels(ids)
+            return (np.clip(uv[:, 0] * GRID[0] / self._lens.width, 0, GRID[0] - 1).astype(int)
+                    * GRID[1] + np.clip(uv[:, 1] * GRID[1] / self._lens.height, 0,
+                                        GRID[1] - 1).astype(int))
         fresh = np.asarray(fresh, dtype=int)[rng.permutation(len(fresh))]
         if not len(fresh):
             return []
@@ -278,31 +283,33 @@ class GeometricRgbdCamera(TimedCamera):
 
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
         """Indices of the landmarks a detector would find (in front, within range, inside the
-        image minus the border, on a face turned toward the camera, not hidden by a box), the
-        noise-free pixels (meaningless behind the camera, NaN out of range) and ranges (z in C,
-        inf out of range) of all landmarks."""
+        image minus the border, on a face turned toward the camera, not hidden by a box), in
+        increasing order, with their noise-free pixels (N, 2) and ranges (z in C) (N,) in the
+        same order. Only the landmarks of the grid cells that reach into the view are projected
+        (a map along a road holds 10^5 of them)."""
         p = self._params
         c = X_WC.translation()
         near = self._grid.members(self._boxes_in_view(X_WC, self._grid.boxes))
         p_CL = self._points_C(X_WC, near)
-        z = np.full(len(self._p_WL_h[0]), np.inf)
-        z[near] = p_CL[:, 2]
-        uv = np.full((len(z), 2), np.nan)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv[near] = p_CL[:, :2] / z[near, None] * self._focal + self._center
-        ahead = (z[near] > 0.1) & (z[near] < p.max_range)
-        candidates = np.sort(near[ahead & self._lens.in_image(uv[near], p.border_margin)])
+        z = p_CL[:, 2]
+        ahead = (z > 0.1) & (z < p.max_range)
+        near, p_CL, z = near[ahead], p_CL[ahead], z[ahead]
+        uv = p_CL[:, :2] / z[:, None] * self._focal + self._center
+        keep = self._lens.in_image(uv, p.border_margin)
+        order = np.argsort(near[keep])
+        candidates, uv, z = near[keep][order], uv[keep][order], z[keep][order]
         m = self.landmarks
         p_WL = m.p_WL[candidates]
         front = np.einsum("ij,ij->i", m.n_WL[candidates], c - p_WL) > 0
-        candidates, p_WL = candidates[front], p_WL[front]
+        candidates, p_WL, uv, z = candidates[front], p_WL[front], uv[front], z[front]
         # Only boxes that reach into the view frustum can hide a point in it.
         in_view = self._boxes_in_view(X_WC)
         own = np.full(len(candidates), -1)
         mine = np.isin(m.box[candidates], in_view)
         own[mine] = np.searchsorted(in_view, m.box[candidates][mine])
-        hidden = occluded(c, p_WL, self._boxes[in_view], own)
-        return candidates[~hidden].tolist(), uv, z
+        seen = ~occluded(c, p_WL, self._boxes[in_view], own)
+        return candidates[seen].tolist(), uv[seen], z[seen]
+
 
 class RenderedRgbdCamera(TimedCamera):
     """Input  `color_image`  ImageRgba8U from a Drake RgbdSensor with this camera's pinhole

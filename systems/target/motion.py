@@ -26,7 +26,7 @@ from pydrake.polynomial import Polynomial
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.primitives import TrajectoryAffineSystem
 from pydrake.trajectories import PiecewisePolynomial
-from scipy.stats import norm
+from scipy.special import ndtri
 
 from alight.systems.params import bounded
 
@@ -146,8 +146,10 @@ class TargetMotion(LeafSystem):
             self._track = Lemniscate(p.half_width)
         elif profile == "field_test":
             self._field = field_test
-            # A random pull starts when the unit noise exceeds this (probability rate * period).
-            self._pull_threshold = float(norm.isf(field_test.pull_rate / 60 * field_test.period))
+            # A random pull starts when the unit noise exceeds this (probability rate * period:
+            # the standard normal's inverse survival function, -ndtri; scipy.stats is slow to
+            # import, half a second of every command's start).
+            self._pull_threshold = -float(ndtri(field_test.pull_rate / 60 * field_test.period))
             self._noise = self.DeclareVectorInputPort("noise", NOISE_SIZE)
             # state: x, y, heading, speed, turn rate, pull time left, pull side, time of update
             initial = np.array([*self._p0, self._psi0, field_test.mean_speed, 0.0, 0.0, 1.0, 0.0])
