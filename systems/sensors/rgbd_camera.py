@@ -193,27 +193,27 @@ class GeometricRgbdCamera(TimedCamera):
         p = self._params
         if rng.random() < p.frame_dropout:
             return None, {}, next_id, np.zeros(0, bool)
-        visible, uv, z = self.visible(X_WC)
-        index = np.asarray(visible, dtype=int)   # increasing: a landmark's row is a search away
-        row = lambda landmarks: np.searchsorted(index, landmarks)  # noqa: E731
-        tracked = [i for i in visible if i in tracks]
+        visible, uv, z = self._visible(X_WC)
+        # Rows of `visible` (its uv, z): tracked in the last frame or not.
+        was_tracked = np.isin(visible, np.fromiter(tracks, int, len(tracks)))
+        tracked = np.flatnonzero(was_tracked)
         # One draw per tracked landmark, in order (as many draws as one call each).
-        kept = [i for i, u in zip(tracked, rng.random(len(tracked))) if u >= p.track_loss]
-        fresh = self._spread([i for i in visible if i not in tracks], kept,
-                             lambda landmarks: uv[row(landmarks)], rng)
-        selected = np.array((kept + fresh)[:p.max_features], dtype=int)
-        new_tracks = {i: tracks[i] for i in kept}
-        for i in selected[len(kept):]:
-            new_tracks[int(i)], next_id = next_id, next_id + 1
+        kept = tracked[rng.random(len(tracked)) >= p.track_loss]
+        fresh = self._spread(np.flatnonzero(~was_tracked), kept, uv, rng)
+        rows = np.concatenate([kept, fresh])[:p.max_features]
+        selected = visible[rows]
+        new_tracks = {i: tracks[i] for i in visible[kept].tolist()}
+        for i in selected[len(kept):].tolist():
+            new_tracks[i], next_id = next_id, next_id + 1
         n = len(selected)
-        ids = np.array([new_tracks[int(i)] for i in selected], np.int64)
+        ids = np.array([new_tracks[i] for i in selected.tolist()], np.int64)
         keypoints = self._lens.project(self._points_C(X_WC, selected)) \
             + p.keypoint_noise_std * rng.standard_normal((n, 2)) if n else np.zeros((0, 2))
         # Outlier matches: a tracked keypoint (not a fresh detection) slides to a wrong pixel.
         jump = (rng.random(n) < p.outlier_probability) & (np.arange(n) < len(kept))
         length = rng.uniform(*p.outlier_error, n)
         angle = rng.uniform(0.0, 2 * np.pi, n)
-        z_true = z[row(selected)]
+        z_true = z[rows]
         if jump.any():
             moved = keypoints[jump] + length[jump, None] * np.column_stack(
                 [np.cos(angle[jump]), np.sin(angle[jump])])
@@ -232,20 +232,18 @@ class GeometricRgbdCamera(TimedCamera):
                             keypoint_ids=ids, depth=depth)
         return frame, new_tracks, next_id, jump
 
-    def _spread(self, fresh: list[int], kept: list[int], pixels, rng) -> list[int]:
-        """New features ordered as a detector with a bucketing grid picks them: evenly over the
-        image (GRID cells, the emptiest first), not where landmarks crowd (near the horizon).
-        `pixels(landmarks)`: their noise-free pixels (N, 2)."""
-        def cells(ids):
-            uv = pixels(ids)
-            return (np.clip(uv[:, 0] * GRID[0] / self._lens.width, 0, GRID[0] - 1).astype(int)
-                    * GRID[1] + np.clip(uv[:, 1] * GRID[1] / self._lens.height, 0,
-                                        GRID[1] - 1).astype(int))
-        fresh = np.asarray(fresh, dtype=int)[rng.permutation(len(fresh))]
+    def _spread(self, fresh: np.ndarray, kept: np.ndarray, uv: np.ndarray, rng) -> np.ndarray:
+        """The `fresh` rows of `uv` (noise-free pixels) ordered as a detector with a bucketing
+        grid picks new features: evenly over the image (GRID cells, the emptiest first, the
+        `kept` tracks counted), not where landmarks crowd (near the horizon)."""
+        def cells(rows):
+            return (np.clip(uv[rows, 0] * GRID[0] / self._lens.width, 0, GRID[0] - 1)
+                    .astype(int) * GRID[1] + np.clip(uv[rows, 1] * GRID[1] / self._lens.height,
+                                                     0, GRID[1] - 1).astype(int))
+        fresh = fresh[rng.permutation(len(fresh))]
         if not len(fresh):
-            return []
-        count = np.bincount(cells(kept), minlength=GRID[0] * GRID[1]) if kept else \
-            np.zeros(GRID[0] * GRID[1], int)
+            return fresh
+        count = np.bincount(cells(kept), minlength=GRID[0] * GRID[1])
         # Each new feature's rank: the features already in its cell (kept, then the new ones
         # before it in the shuffled order).
         cell = cells(fresh)
@@ -254,7 +252,7 @@ class GeometricRgbdCamera(TimedCamera):
         before = np.empty(len(fresh), int)
         before[order] = np.arange(len(fresh)) - first
         rank = count[cell] + before
-        return fresh[np.argsort(rank, kind="stable")].tolist()
+        return fresh[np.argsort(rank, kind="stable")]
 
     def _points_C(self, X_WC: RigidTransform, indices=None) -> np.ndarray:
         """Landmarks (all, or those of `indices`) in the camera frame C."""
@@ -282,6 +280,11 @@ class GeometricRgbdCamera(TimedCamera):
         return np.flatnonzero(~outside)
 
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
+        """`_visible` with the indices as a list."""
+        visible, uv, z = self._visible(X_WC)
+        return visible.tolist(), uv, z
+
+    def _visible(self, X_WC: RigidTransform) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Indices of the landmarks a detector would find (in front, within range, inside the
         image minus the border, on a face turned toward the camera, not hidden by a box), in
         increasing order, with their noise-free pixels (N, 2) and ranges (z in C) (N,) in the
@@ -308,7 +311,7 @@ class GeometricRgbdCamera(TimedCamera):
         mine = np.isin(m.box[candidates], in_view)
         own[mine] = np.searchsorted(in_view, m.box[candidates][mine])
         seen = ~occluded(c, p_WL, self._boxes[in_view], own)
-        return candidates[seen].tolist(), uv[seen], z[seen]
+        return candidates[seen], uv[seen], z[seen]
 
 
 class RenderedRgbdCamera(TimedCamera):
