@@ -194,6 +194,9 @@ class CameraFrame:
     A `geometric` camera source (DESIGN.md "Simulation fidelity") sends no image but keypoint
     observations instead: `keypoints` (N, 2) pixel coordinates in the (distorted) image, with the
     ids of the observed pattern keypoints in `keypoint_ids` (N,), and the same calibration.
+
+    A frame is a value: its arrays are read-only once it is made, and copies of it (Drake clones
+    port and state values with copy.deepcopy, several times per frame and tick) share it.
     """
     stamp: float = float("nan")
     image: np.ndarray | None = None
@@ -205,6 +208,14 @@ class CameraFrame:
     @property
     def valid(self) -> bool:
         return (self.image is not None or self.keypoints is not None) and np.isfinite(self.stamp)
+
+    def __post_init__(self):
+        for array in (self.image, self.depth, self.keypoints, self.keypoint_ids):
+            if isinstance(array, np.ndarray):
+                array.flags.writeable = False
+
+    def __deepcopy__(self, memo) -> "CameraFrame":
+        return self
 
 
 VECTOR_OUTPUTS = {"fc_attitude": FC_ATTITUDE, "fc_status": FC_STATUS, "range": RANGE}

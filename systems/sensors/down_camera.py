@@ -72,14 +72,6 @@ class DownCameraParams:
                          self.rectified_scale, self.X_BC().GetAsMatrix4())
 
 
-class PublishedFrame(CameraFrame):
-    """A frame once exposed: nothing changes it afterwards, so Drake's copies of the camera's state
-    and output (copy.deepcopy, about eight per frame) share it instead of copying its arrays."""
-
-    def __deepcopy__(self, memo) -> "PublishedFrame":
-        return self
-
-
 class TimedCamera(LeafSystem):
     """Exposure and publication timing shared by the camera sources. Subclasses implement
     `_expose(context) -> CameraFrame | None` (None: the frame is lost).
@@ -106,7 +98,7 @@ class TimedCamera(LeafSystem):
         pending = list(context.get_abstract_state(self._pending).get_value())
         if frame is not None:
             release = context.get_time() + self._params.latency
-            pending.append((release, PublishedFrame(**vars(frame))))
+            pending.append((release, frame))
         state.get_mutable_abstract_state(self._pending).set_value(pending)
 
     def _on_release(self, context, state):
