@@ -27,6 +27,7 @@ unprofiled run.
 
     python bench/sim_speed.py [--cases hover,land,vio] [--rendered] [--target-speed 2]
                               [--seed 0] [--set 'KEY: VALUE' ...] [--top 10] [--no-profile]
+                              [--callbacks]
 """
 import argparse
 import dataclasses as dc
@@ -43,6 +44,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 CASES = ("hover", "land", "vio", "rendered")
+CALLBACKS = False   # --callbacks: the per-system table split per callback
 # (mocap named: VIO is the field scenario's default odometry; these cases keep their sensing)
 CASE_OVERRIDES = {"land": ["onboard.estimator: mocap"], "vio": ["onboard.estimator: vio"],
                   "rendered": ["vehicle.down_camera.source: rendered", "onboard.estimator: mocap"]}
@@ -120,16 +122,20 @@ class SystemProfiler:
             return original(system, *args, **kwargs)
         return declare
 
-    def per_system(self, root) -> list[tuple[str, str, int, float]]:
-        """(path below `root`, class, calls, exclusive CPU seconds) per system, slowest first."""
+    def per_system(self, root, callbacks: bool = False) -> list[tuple[str, str, int, float]]:
+        """(path below `root`, class, calls, exclusive CPU seconds) per system, slowest first;
+        with `callbacks`, per callback of each system (the class column then names the
+        callback: its kind and function, e.g. PeriodicDiscreteUpdateEvent:_update)."""
         calls, seconds = defaultdict(int), defaultdict(float)
         for (sid, label), n in self.calls.items():
-            calls[sid] += n
-            seconds[sid] += self.seconds[(sid, label)]
+            key = (sid, label) if callbacks else (sid, None)
+            calls[key] += n
+            seconds[key] += self.seconds[(sid, label)]
         rows = []
-        for sid in calls:
-            rows.append((_path(self.systems.get(sid), root), _class(self.systems.get(sid)),
-                         calls[sid], seconds[sid]))
+        for sid, label in calls:
+            system = self.systems.get(sid)
+            rows.append((_path(system, root), label or _class(system), calls[(sid, label)],
+                         seconds[(sid, label)]))
         return sorted(rows, key=lambda r: -r[3])
 
     def overhead_per_call(self) -> float:
@@ -353,7 +359,7 @@ def measure_mission(case: str, args) -> Measurement:
 
 
 def _attach_table(result: Measurement, profiler: SystemProfiler, diagram, cpu: float) -> None:
-    result.table = profiler.per_system(diagram)
+    result.table = profiler.per_system(diagram, CALLBACKS)
     result.profiled_cpu = cpu
     result.callbacks = sum(profiler.calls.values())
     result.overhead = result.callbacks * profiler.overhead_per_call()
@@ -367,9 +373,12 @@ def print_table(result: Measurement, top: int) -> None:
     print(f"  per system (profiled run: {result.profiled_cpu / T:.3f} CPU s/sim s, of which "
           f"profiler ~{result.overhead / T:.3f}; Python callbacks "
           f"{python / T:.3f}, {result.callbacks / T:.0f} calls/sim s):")
-    print(f"    {'system':48s} {'class':26s} {'calls/sim s':>11s} {'CPU ms/sim s':>12s}")
+    width = 44 if CALLBACKS else 26
+    print(f"    {'system':48s} {'callback' if CALLBACKS else 'class':{width}s} {'calls/sim s':>11s} "
+          f"{'CPU ms/sim s':>12s}")
     for path, cls, calls, seconds in result.table[:top]:
-        print(f"    {path[-48:]:48s} {cls[:26]:26s} {calls / T:11.0f} {1e3 * seconds / T:12.1f}")
+        print(f"    {path[-48:]:48s} {cls[:width]:{width}s} {calls / T:11.0f} "
+              f"{1e3 * seconds / T:12.1f}")
     rest = result.profiled_cpu - python - result.overhead
     print(f"    {'everything else: C++ (plant, Drake primitives, framework dispatch)':75s} "
           f"{'':11s} {1e3 * max(rest, 0.0) / T:12.1f}")
@@ -389,7 +398,11 @@ def main():
     parser.add_argument("--top", type=int, default=10, help="rows of the per-system table")
     parser.add_argument("--no-profile", dest="profile", action="store_false",
                         help="skip the profiled second run of each case")
+    parser.add_argument("--callbacks", action="store_true",
+                        help="the table per callback (output, update or publish) of each system")
     args = parser.parse_args()
+    global CALLBACKS
+    CALLBACKS = args.callbacks
     cases = [c for c in args.cases.split(",") if c]
     if args.rendered and "rendered" not in cases:
         cases.append("rendered")
