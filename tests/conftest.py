@@ -31,7 +31,7 @@ TAKEOFF_END = 5.0
 def pytest_collection_modifyitems(config, items):
     """Spreads the `realtime` tests evenly through the run order (the others keep theirs), so
     that the xdist workers, which take tests in order, seldom reach two at once and wait on
-    one_realtime_test_at_a_time's lock."""
+    the lock of `pytest_runtest_protocol`."""
     realtime = [item for item in items if item.get_closest_marker("realtime")]
     others = [item for item in items if not item.get_closest_marker("realtime")]
     if not realtime or not others:
@@ -42,16 +42,22 @@ def pytest_collection_modifyitems(config, items):
                 for ordered in ([slots[index], item] if index in slots else [item])]
 
 
-@pytest.fixture(autouse=True)
-def one_realtime_test_at_a_time(request, tmp_path_factory):
-    """Tests marked `realtime` (tests/mavlink_fake.py) hold an exclusive lock in the session's
-    temporary folder, shared by the xdist workers, while they run, so that two real-time
-    simulated autopilots never share the machine's cores."""
-    if request.node.get_closest_marker("realtime") is None:
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """The `realtime` tests (tests/mavlink_fake.py) hold an exclusive lock in the session's
+    temporary folder, shared by the xdist workers, and the other `mission` tests a shared one,
+    over their whole run (set-up included: a module's fixture may fly a landing): a real-time
+    simulated autopilot then never shares the machine's cores with another one or with a
+    simulated mission (on two cores a mission beside it made it lag by 15-260 ms, and the
+    accuracy its tests judge degrade with that lag), while the unit tests go on beside it."""
+    mode = fcntl.LOCK_EX if item.get_closest_marker("realtime") else \
+        fcntl.LOCK_SH if item.get_closest_marker("mission") else None
+    if mode is None:
         yield
         return
-    with open(tmp_path_factory.getbasetemp().parent / "realtime-tests.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    folder = item.config._tmp_path_factory.getbasetemp().parent
+    with open(folder / "realtime-tests.lock", "w") as lock:
+        fcntl.flock(lock, mode)
         yield
 
 
