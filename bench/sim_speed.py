@@ -44,7 +44,6 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 CASES = ("hover", "land", "vio", "rendered")
-CALLBACKS = False   # --callbacks: the per-system table split per callback
 # (mocap named: VIO is the field scenario's default odometry; these cases keep their sensing)
 CASE_OVERRIDES = {"land": ["onboard.estimator: mocap"], "vio": ["onboard.estimator: vio"],
                   "rendered": ["vehicle.down_camera.source: rendered", "onboard.estimator: mocap"]}
@@ -186,6 +185,7 @@ class Measurement:
     outcome: str = ""
     table: list = dc.field(default_factory=list)
     profiled_cpu: float = 0.0    # s, AdvanceTo of the profiled run
+    per_callback: bool = False   # the table's rows are callbacks (--callbacks), not systems
     overhead: float = 0.0        # s, the profiler's own estimated cost in that run
     callbacks: int = 0
 
@@ -268,7 +268,8 @@ def bare_plant_diagram(with_world: bool = False):
     return builder.Build()
 
 
-def measure_hover(duration: float, repeats: int, profile: bool) -> Measurement:
+def measure_hover(duration: float, repeats: int, profile: bool,
+                  per_callback: bool = False) -> Measurement:
     best = None
     for _ in range(repeats):
         wall, cpu, steps, simulated, _ = advance(hover_diagram(duration), duration)
@@ -279,7 +280,7 @@ def measure_hover(duration: float, repeats: int, profile: bool) -> Measurement:
         with profiler.installed():
             diagram = hover_diagram(duration)
         _, cpu, _, _, _ = advance(diagram, duration)
-        _attach_table(best, profiler, diagram, cpu)
+        _attach_table(best, profiler, diagram, cpu, per_callback)
     return best
 
 
@@ -354,12 +355,14 @@ def measure_mission(case: str, args) -> Measurement:
     if args.profile:
         profiler = SystemProfiler()
         (_, cpu, _, _, _), _, _, diagram = fly_mission(scenario, profiler)
-        _attach_table(result, profiler, diagram, cpu)
+        _attach_table(result, profiler, diagram, cpu, args.callbacks)
     return result
 
 
-def _attach_table(result: Measurement, profiler: SystemProfiler, diagram, cpu: float) -> None:
-    result.table = profiler.per_system(diagram, CALLBACKS)
+def _attach_table(result: Measurement, profiler: SystemProfiler, diagram, cpu: float,
+                  per_callback: bool) -> None:
+    result.per_callback = per_callback
+    result.table = profiler.per_system(diagram, per_callback)
     result.profiled_cpu = cpu
     result.callbacks = sum(profiler.calls.values())
     result.overhead = result.callbacks * profiler.overhead_per_call()
@@ -373,9 +376,9 @@ def print_table(result: Measurement, top: int) -> None:
     print(f"  per system (profiled run: {result.profiled_cpu / T:.3f} CPU s/sim s, of which "
           f"profiler ~{result.overhead / T:.3f}; Python callbacks "
           f"{python / T:.3f}, {result.callbacks / T:.0f} calls/sim s):")
-    width = 44 if CALLBACKS else 26
-    print(f"    {'system':48s} {'callback' if CALLBACKS else 'class':{width}s} {'calls/sim s':>11s} "
-          f"{'CPU ms/sim s':>12s}")
+    width = 44 if result.per_callback else 26
+    print(f"    {'system':48s} {'callback' if result.per_callback else 'class':{width}s} "
+          f"{'calls/sim s':>11s} {'CPU ms/sim s':>12s}")
     for path, cls, calls, seconds in result.table[:top]:
         print(f"    {path[-48:]:48s} {cls[:width]:{width}s} {calls / T:11.0f} "
               f"{1e3 * seconds / T:12.1f}")
@@ -401,8 +404,6 @@ def main():
     parser.add_argument("--callbacks", action="store_true",
                         help="the table per callback (output, update or publish) of each system")
     args = parser.parse_args()
-    global CALLBACKS
-    CALLBACKS = args.callbacks
     cases = [c for c in args.cases.split(",") if c]
     if args.rendered and "rendered" not in cases:
         cases.append("rendered")
@@ -415,8 +416,8 @@ def main():
     for reference in (bare, world):
         print(reference.line(), flush=True)
     for case in cases:
-        result = measure_hover(args.duration, args.repeats, args.profile) if case == "hover" \
-            else measure_mission(case, args)
+        result = measure_hover(args.duration, args.repeats, args.profile, args.callbacks) \
+            if case == "hover" else measure_mission(case, args)
         print(result.line())
         if result.outcome:
             print(f"  outcome: {result.outcome}")

@@ -16,6 +16,7 @@ from alight.diagrams.analysis.landing import score_landing
 from alight.diagrams.running.run_log import RunLog
 from alight.models import model_path
 from alight.systems.mission.landing import Mode, Reason
+from alight.systems.rotations import quaternion_heading
 from conftest import SHORT_LANDING, assert_landed
 
 SPEED = 2.0  # m/s
@@ -194,8 +195,8 @@ def test_a_landing_on_the_mbzirc_figure_eight_s_curve_rests_on_the_turning_platf
     score = assert_landed(run, scenario, scenario.target_motion.speed)
     truth = run["ground_truth"]
     end = truth["time"] > truth["time"].iloc[-1] - 0.5
-    heading = np.unwrap([2 * np.arctan2(q[3], q[0]) for q in
-                         run.field("ground_truth", "q_WT").to_numpy()[end]])
+    heading = np.unwrap([quaternion_heading(*q) for q in
+                         run.field("ground_truth", "q_WT").to_numpy()[end].tolist()])
     turn_rate = abs(np.polyfit(truth["time"][end], heading, 1)[0])
     offset = run.field("ground_truth", "p_WB").to_numpy()[end] \
         - run.field("ground_truth", "p_WT").to_numpy()[end]

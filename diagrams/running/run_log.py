@@ -196,8 +196,7 @@ class RunLoggers:
     writer: RunFolderWriter | None = None
     folder: "RunFolder | None" = None
     diagram_timers: dict[str, ComputeTimer] = dc.field(default_factory=dict)
-
-    recorder: VectorStreamRecorder | None = None
+    recorder: VectorStreamRecorder | None = None   # with the first stream
 
     def add(self, builder, name: str, port, layout: VectorLayout, period: float = 0.01) -> None:
         """Logs one more vector port as stream `name` (on the run's `VectorStreamRecorder`,
