@@ -9,11 +9,13 @@ the QP: many bounds active) and velocity errors up to 3 m/s, and one periodic up
     /work/venv/bin/python bench/controllers.py [--ticks 2000]
 """
 import argparse
+import dataclasses as dc
 import time
 
 import numpy as np
 
 from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
+from alight.systems.control.mpc_force import MpcForceQp
 from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, CommandMode
 from alight.systems.rotations import heading_quaternion
 
@@ -58,16 +60,38 @@ def time_controller(name: str, ticks: int, solver: str | None = None) -> np.ndar
     return np.array(times[10:])  # the first ticks include lazy initialization
 
 
+def solver_agreement(ticks: int, solver: str, reference: str = "clarabel") -> np.ndarray:
+    """max |u - u_reference| over the horizon (m/s^2), per tick, of the MPC's QP solved by
+    `solver` and by `reference` from the same initial states (the reference's last first input
+    as u_prev): the position and velocity errors of `estimates`."""
+    config = load_controllers_config()
+    qps = [MpcForceQp(dc.replace(config.mpc, solver=name), config.period)
+           for name in (solver, reference)]
+    u_prev, gaps = np.zeros(3), []
+    for estimate in estimates(ticks, np.random.default_rng(0)):
+        e_p = STATE_ESTIMATE.get(estimate, "p_EB") - [0, 0, 3.0]
+        x0 = qps[1].initial_state(e_p, STATE_ESTIMATE.get(estimate, "v_EB"), u_prev)
+        (ok, u, _), (ok_ref, u_ref, _) = (qp.solve(x0, u_prev) for qp in qps)
+        gaps.append(np.abs(u - u_ref).max() if ok and ok_ref else np.inf)
+        u_prev = u_ref[:, 0]
+    return np.array(gaps)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=2000)
     args = parser.parse_args()
     print(f"{'controller':22s} {'mean ms':>8s} {'p99 ms':>8s} {'max ms':>8s} {'mean/10 ms':>11s}")
     for label, name, solver in (("se3", "se3", None), ("mpc (clarabel)", "mpc", "clarabel"),
-                                ("mpc (osqp)", "mpc", "osqp")):
+                                ("mpc (osqp)", "mpc", "osqp"), ("mpc (daqp)", "mpc", "daqp")):
         t = time_controller(name, args.ticks, solver) * 1e3
         print(f"{label:22s} {t.mean():8.3f} {np.percentile(t, 99):8.3f} {t.max():8.3f} "
               f"{t.mean() / (BUDGET * 1e3):11.3f}")
+    for solver in ("osqp", "daqp"):
+        gap = solver_agreement(args.ticks, solver)
+        print(f"mpc ({solver}) against clarabel, max |u - u_clarabel| over the horizon: median "
+              f"{np.median(gap):.2e}, p99 {np.percentile(gap, 99):.2e}, max {gap.max():.2e} m/s^2 "
+              f"({np.count_nonzero(~np.isfinite(gap))} failed solves of {len(gap)})")
 
 
 if __name__ == "__main__":

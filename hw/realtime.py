@@ -138,6 +138,33 @@ class LagReporter:
         return late
 
 
+class RealtimeMeter:
+    """The figures of a RealtimeReport as ticks come: ticks, overruns (a tick that ends more than
+    `tolerance` behind `clock`), the largest lag, the wall time waited for a peer's clock, and the
+    wall and CPU time since it was made; one warning per `warn_period` s of wall time that had
+    an overrun (LagReporter)."""
+
+    def __init__(self, clock: WallClock, tolerance: float, warn_period: float, note: str = ""):
+        self._clock = clock
+        self._lag_reporter = LagReporter(clock.rate, warn_period, tolerance, note)
+        self.ticks = self.overruns = 0
+        self.max_lag = self.paced_wait = 0.0
+        self._wall_start, self._cpu_start = time.monotonic(), time.process_time()
+
+    def tick(self, t: float) -> None:
+        """A tick that advanced the diagram to `t` has ended."""
+        self.ticks += 1
+        lag = self._clock.now() - t
+        self.max_lag = max(self.max_lag, lag)
+        self.overruns += self._lag_reporter.tick(t, lag, time.monotonic())
+
+    def report(self, sim_time: float, interrupted: bool = False, safe_stop: str = "",
+               error: str = "") -> RealtimeReport:
+        return RealtimeReport(sim_time, time.monotonic() - self._wall_start, self.ticks,
+                              self.overruns, self.max_lag, interrupted, safe_stop, error,
+                              self.paced_wait, time.process_time() - self._cpu_start)
+
+
 class _StopRequest:
     """Ctrl-C (SIGINT) and SIGTERM set a flag that the loop reads between ticks. An exception
     raised from the signal handler would surface inside a Python system called by Drake's C++
@@ -181,15 +208,12 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     stop, previous = _install_stop_handlers()
     while start_when is not None and not stop.requested and not start_when():
         time.sleep(0.01)
-    ticks = overruns = 0
-    max_lag = paced_wait = 0.0
     pacer = Pacer(pace, pace_stall) if pace is not None else None
-    lag_reporter = LagReporter(clock.rate, warn_period, overrun_tolerance,
-                               " (paced by the autopilot's clock)" if pace is not None else "")
     interrupted = False
     error = None
     clock.restart()
-    wall_start, cpu_start = time.monotonic(), time.process_time()
+    meter = RealtimeMeter(clock, overrun_tolerance, warn_period,
+                          " (paced by the autopilot's clock)" if pace is not None else "")
     try:
         simulator.Initialize()
         end = math.inf if duration is None else duration
@@ -197,12 +221,9 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
         while t < end and not stop.requested:
             t = min(t + tick, end)
             if pacer is not None:
-                paced_wait += pacer.wait_until(t)
+                meter.paced_wait += pacer.wait_until(t)
             simulator.AdvanceTo(t)
-            ticks += 1
-            lag = clock.now() - t
-            max_lag = max(max_lag, lag)
-            overruns += lag_reporter.tick(t, lag, time.monotonic())
+            meter.tick(t)
             if stop_when is not None and stop_when(context):
                 break
     except KeyboardInterrupt:      # off the main thread the handlers are not installed
@@ -212,8 +233,8 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
     finally:
         interrupted = interrupted or stop.requested
         _restore_handlers(previous)
-        wall = time.monotonic() - wall_start
-        cpu = time.process_time() - cpu_start
+        report = meter.report(context.get_time(), interrupted,
+                              error="" if error is None else repr(error))
         stop_answer = "none (no vehicle hook)"
         if safe_stop is not None:
             try:
@@ -221,8 +242,7 @@ def run_realtime(diagram, duration: float | None, clock: WallClock, seed: int = 
             except Exception as e:  # the report must still come back
                 stop_answer = f"FAILED: {e}"
                 LOG.error("final safe command failed: %s", e)
-    report = RealtimeReport(context.get_time(), wall, ticks, overruns, max_lag, interrupted,
-                            stop_answer, "" if error is None else repr(error), paced_wait, cpu)
+    report = dc.replace(report, safe_stop=stop_answer)
     if error is not None:
         LOG.error("real-time run stopped by an error; %s", "; ".join(report.lines()))
         raise error

@@ -37,10 +37,14 @@ def test_mission_api_flies_the_sim_autopilot_over_mavlink(tmp_path):
     assert sim["fc_status"]["armed"].iloc[-1] == 0.0                  # ... landed, disarmed
     assert np.isfinite(onboard["fc_command"].to_numpy()).all()
     assert "disarmed" in onboard.metadata["closed"][0]
-    realtime = sim.metadata["realtime"]
-    if realtime["max_lag"] > 0.05:  # quiet: no overrun; beside a CPU-heavy test on the other
-        # worker: 338 of 1453 ticks over, 106 ms, and the touchdown tipped (17 cm below the start)
-        pytest.skip(f"the simulated autopilot did not keep real time ({realtime['overruns']} "
-                    f"overruns of {realtime['ticks']} ticks, max lag "
-                    f"{1e3 * realtime['max_lag']:.0f} ms): the touchdown's physics is not judged")
+    for side, run in (("simulated autopilot", sim), ("onboard stack", onboard)):
+        realtime = run.metadata["realtime"]
+        # Quiet: no overrun. Beside a CPU-heavy test on the other worker the autopilot fell
+        # 106 ms behind (338 of 1453 ticks) and the touchdown tipped 17 cm below the start; the
+        # onboard side fell up to 0.5 s behind and caught up by running faster than real time,
+        # so the goto's reference ran faster than planned: 0.56 m overshoot, touching down there.
+        if realtime["max_lag"] > 0.05:
+            pytest.skip(f"the {side} did not keep real time ({realtime['overruns']} overruns of "
+                        f"{realtime['ticks']} ticks, max lag {1e3 * realtime['max_lag']:.0f} "
+                        f"ms): the touchdown's physics is not judged")
     assert abs(p[-1, 2] - p[0, 2]) < 0.05 and np.linalg.norm(p[-1, :2] - [2.0, 0.0]) < 0.5

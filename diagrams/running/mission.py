@@ -45,7 +45,7 @@ from alight.hw.hil import MissionUnavailable
 from alight.hw.link import MavlinkLink
 from alight.hw.mavlink_vehicle import (LINK_STATUS, MavlinkVehicleParams, command_sender,
                                        load_mavlink_vehicle_params, make_mavlink_vehicle)
-from alight.hw.realtime import Pacer, WallClock
+from alight.hw.realtime import Pacer, RealtimeMeter, WallClock
 from alight.systems.boundary import STATE_ESTIMATE
 from alight.systems.managers.constraint_manager import (CONSTRAINT_STATUS, GroupRefusal,
                                                         load_constraint_manager_params)
@@ -370,27 +370,36 @@ def mavlink_mission(connect: str, frame_address: str | None = None,
         "realtime_rate": realtime_rate, "follow_autopilot_clock": follow_autopilot_clock},
         strict)
     pacer = Pacer(link.autopilot_time, stall=1.0) if follow_autopilot_clock else None
-    mission.advance_to = lambda t: _advance(simulator, t, tick, pacer)
+    meter = RealtimeMeter(clock, tolerance=0.02, warn_period=5.0,
+                          note=" (paced by the autopilot's clock)" if pacer else "")
+    mission.advance_to = lambda t: _advance(simulator, t, tick, pacer, meter)
 
     def safe_stop() -> str:
+        answer = "FAILED"
         try:
             sender.wait_idle()
-            return link.safe_stop()
+            answer = link.safe_stop()
+            return answer
         finally:
             _close(link, frames)
+            # How the onboard side kept real time (run folder `metadata.json` "realtime"):
+            # a tick that ends behind the wall clock ran late (a loaded companion computer).
+            mission.metadata["realtime"] = dc.asdict(meter.report(mission.time, safe_stop=answer))
     mission.closers.append(safe_stop)
     return mission
 
 
-def _advance(simulator: Simulator, t_end: float, tick: float, pacer) -> None:
+def _advance(simulator: Simulator, t_end: float, tick: float, pacer: Pacer | None,
+             meter: RealtimeMeter) -> None:
     """AdvanceTo in `tick` steps (the real-time rate paces them), each also waiting for the
-    autopilot's clock when `pacer` is given."""
+    autopilot's clock when `pacer` is given; `meter` counts how late each tick ends."""
     t = simulator.get_context().get_time()
     while t < t_end - 1e-9:
         t = min(t + tick, t_end)
         if pacer is not None:
-            pacer.wait_until(t)
+            meter.paced_wait += pacer.wait_until(t)
         simulator.AdvanceTo(t)
+        meter.tick(t)
 
 
 def _close(link: MavlinkLink, frames: FrameSubscriber | None) -> None:
