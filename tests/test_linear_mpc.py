@@ -302,6 +302,55 @@ def test_moving_reference_lag_with_and_without_velocity(vehicle_config, tmp_path
         assert lag.mean() > 0.5, f"lag {lag.mean():.3f} m"
 
 
+def test_a_reference_acceleration_curves_the_predicted_reference_and_its_hold_inputs():
+    """Beyond L Sec. 6.3 (a constant-velocity reference): with an acceleration a the reference
+    over the horizon is p + v t + a t^2 / 2 and the inputs hold v + a t against the drag of L(11)
+    plus the acceleration itself."""
+    dut = LinearMpc(load_linear_model(), load_linear_mpc())
+    model, N, dt = load_linear_model(), load_linear_mpc().horizon_steps, load_linear_mpc().period
+    v, a = np.array([4.0, 0.0, 0.0]), np.array([0.0, 1.7, 0.0])
+    s_y, s_u = dut.references(REFERENCE.pack(stamp=0.0, p=np.zeros(3), v=v, a=a, j=np.zeros(3),
+                                             heading=0.0, heading_rate=0.0), yaw=0.0)
+    t = dt * np.arange(1, N + 1)[:, None]
+    states, inputs = s_y.reshape(N, -1), s_u.reshape(N, 3)
+    np.testing.assert_allclose(states[:, 0:3], v * t + 0.5 * a * t * t, atol=1e-12)
+    np.testing.assert_allclose(states[:, 3:6], v + a * t, atol=1e-12)
+    np.testing.assert_allclose(inputs[:, 0], model.c_x * 4.0 / 9.81, atol=1e-12)  # pitch
+    np.testing.assert_allclose(inputs[:, 1], -(model.c_y * 1.7 * t[:, 0] + 1.7) / 9.81,
+                               atol=1e-12)                                       # roll
+    still, _ = dut.references(REFERENCE.pack(stamp=0.0, p=np.zeros(3), v=v, a=np.zeros(3),
+                                             j=np.zeros(3), heading=0.0, heading_rate=0.0), 0.0)
+    np.testing.assert_allclose(still.reshape(N, -1)[:, 0:3], v * t, atol=1e-12)
+
+
+@pytest.mark.mission
+@pytest.mark.parametrize("with_acceleration, bound", [(True, 0.05), (False, None)])
+def test_a_circle_is_flown_on_it_with_its_acceleration_and_outside_without(
+        vehicle_config, tmp_path, with_acceleration, bound):
+    """The MBZIRC car's tightest turn (10 m radius at 15 km/h, 1.7 m/s^2 toward the centre):
+    extrapolated straight over the 1 s horizon the reference pulls the vehicle outside the
+    circle; with its acceleration the vehicle flies on it (measured: radial offset +0.006 m mean,
+    0.051 m max; without: +1.06 m)."""
+    radius, speed = 10.0, 15 / 3.6
+    rate = speed / radius
+    centre = HOVER + [0.0, radius, 0.0]
+
+    def circle(t):
+        angle = rate * t - np.pi / 2
+        out = np.array([np.cos(angle), np.sin(angle), 0.0])
+        along = np.array([-np.sin(angle), np.cos(angle), 0.0])
+        a = -speed * rate * out
+        return (centre + radius * out, speed * along) + ((a,) if with_acceleration else ())
+    # (a standing start would need the acceleration from rest: the reference starts moving)
+    run = fly_reference(vehicle_config, hover_then(circle, 4.0), 16.0, tmp_path)
+    truth = _after(run, "ground_truth", 10.0)
+    offset = np.hypot(truth["p_WB_0"] - centre[0], truth["p_WB_1"] - centre[1]) - radius
+    if bound is not None:
+        assert np.abs(offset).mean() < bound, f"radial offset {offset.mean():+.3f} m"
+    else:
+        assert offset.mean() > 0.5, f"radial offset {offset.mean():+.3f} m"
+
+
 @pytest.mark.mission
 @pytest.mark.parametrize("gain", [0.0, 0.05])
 def test_hover_in_15_kmh_gusty_wind_offset_and_its_removal(vehicle_config, tmp_path, gain):

@@ -52,8 +52,8 @@ from alight.systems.thrust_curve import ThrustCurve
 _E_STAMP, _E_P, _E_V, _E_HEADING = (STATE_ESTIMATE.slice(field) for field in
                                     ("stamp", "p_EB", "v_EB", "heading"))
 _E_STAMP, _E_HEADING = _E_STAMP.start, _E_HEADING.start
-_R_STAMP, _R_P, _R_V, _R_HEADING = (REFERENCE.slice(field) for field in
-                                    ("stamp", "p", "v", "heading"))
+_R_STAMP, _R_P, _R_V, _R_A, _R_HEADING = (REFERENCE.slice(field) for field in
+                                          ("stamp", "p", "v", "a", "heading"))
 _R_STAMP, _R_HEADING = _R_STAMP.start, _R_HEADING.start
 _A_Q, _A_W = FC_ATTITUDE.slice("q_WB"), FC_ATTITUDE.slice("w_B")
 _ATTITUDE_THRUST = float(CommandMode.ATTITUDE_THRUST)
@@ -333,23 +333,39 @@ class LinearMpc(Controller):
 
     def references(self, reference: np.ndarray, yaw: float,
                    d_N: np.ndarray = np.zeros(3)) -> tuple[np.ndarray, np.ndarray]:
-        """s_y (N*n) and s_u (N*m) in N, relative to the reference position at t = 0: the inputs
-        that hold the reference velocity against the drag of L(11) and the disturbance d_N."""
-        v_N = to_navigation(REFERENCE.get(reference, "v").tolist(), float(np.cos(yaw)),
-                            float(np.sin(yaw)))
-        return self._references(v_N, np.asarray(d_N, float).tolist(), np.zeros(self._s_y.shape))
+        """s_y (N*n) and s_u (N*m) in N, relative to the reference position at t = 0: the
+        reference moving on with its velocity and acceleration (constant over the horizon), and
+        the inputs that hold that motion against the drag of L(11) and the disturbance d_N."""
+        c, s = float(np.cos(yaw)), float(np.sin(yaw))
+        return self._references(to_navigation(REFERENCE.get(reference, "v").tolist(), c, s),
+                                np.asarray(d_N, float).tolist(), np.zeros(self._s_y.shape),
+                                to_navigation(REFERENCE.get(reference, "a").tolist(), c, s))
 
-    def _references(self, v_N: list[float], d_N: list[float],
-                    s_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """`references` of the reference velocity and d_N in N (floats), s_y written into `s_y`
-        ((N, n), its last two columns zero)."""
+    def _references(self, v_N: list[float], d_N: list[float], s_y: np.ndarray,
+                    a_N: list[float]) -> tuple[np.ndarray, np.ndarray]:
+        """`references` of the reference velocity, acceleration and d_N in N (floats), s_y
+        written into `s_y` ((N, n), its last two columns zero). The landing paper's reference
+        has no acceleration (L Sec. 6.3: a constant velocity over the horizon); a turning
+        target's (systems/mission/landing.py) curves it: p + v t + a t^2 / 2."""
         m = self._model
-        (v_x, v_y, v_z), (d_x, d_y, d_z) = v_N, d_N
-        hold = [(m.c_x * v_x - d_x) / GRAVITY, (d_y - m.c_y * v_y) / GRAVITY, m.c_z * v_z - d_z]
-        np.multiply(self._step_times, v_N, out=s_y[:, 0:3])
-        s_y[:, 3:6] = v_N
-        s_y[:, 6:8] = hold[:2]
-        return s_y.ravel(), np.array(hold * self._p.horizon_steps)  # (the same at every step)
+        (d_x, d_y, d_z) = d_N
+        if not any(a_N):   # (the constant-velocity reference: one hold for every step)
+            (v_x, v_y, v_z) = v_N
+            hold = [(m.c_x * v_x - d_x) / GRAVITY, (d_y - m.c_y * v_y) / GRAVITY,
+                    m.c_z * v_z - d_z]
+            np.multiply(self._step_times, v_N, out=s_y[:, 0:3])
+            s_y[:, 3:6] = v_N
+            s_y[:, 6:8] = hold[:2]
+            return s_y.ravel(), np.array(hold * self._p.horizon_steps)
+        t, a = self._step_times, np.array(a_N)
+        v = v_N + t * a                                   # (N, 3) the velocity at each step
+        s_y[:, 0:3] = t * v_N + 0.5 * t * t * a
+        s_y[:, 3:6] = v
+        hold = np.column_stack([(m.c_x * v[:, 0] + a[0] - d_x) / GRAVITY,
+                                (d_y - m.c_y * v[:, 1] - a[1]) / GRAVITY,
+                                m.c_z * v[:, 2] + a[2] - d_z])
+        s_y[:, 6:8] = hold[:, :2]
+        return s_y.ravel(), hold.ravel()
 
     def _update_inactive(self, context, discrete_state):
         """Follows the issued command; no failures, no prediction to compare with."""
@@ -380,7 +396,8 @@ class LinearMpc(Controller):
         age = self._age(e[_E_STAMP], now)
         p_EB = [p + v * age for p, v in zip(e[_E_P], v_EB)]
         age = self._age(r[_R_STAMP], now)
-        p_ref = carrot(p_EB, [p + v * age for p, v in zip(r[_R_P], r[_R_V])],
+        p_ref = carrot(p_EB, [p + (v + 0.5 * a * age) * age
+                              for p, v, a in zip(r[_R_P], r[_R_V], r[_R_A])],
                        self._p.max_position_error)
         # model_state(p_EB, v_EB, q_EB, w_B, p_ref)
         theta, phi, yaw = euler_angles(*q_EB)
@@ -395,7 +412,8 @@ class LinearMpc(Controller):
         d_N = to_navigation(d_W, cos_yaw, sin_yaw)
         d_N_vector = np.array(d_N)
         v_N = to_navigation(r[_R_V], cos_yaw, sin_yaw)
-        self._qp.update(x0, *self._references(v_N, d_N, self._s_y),
+        a_N = to_navigation(r[_R_A], cos_yaw, sin_yaw)
+        self._qp.update(x0, *self._references(v_N, d_N, self._s_y, a_N),
                         previous if all(map(math.isfinite, previous.tolist())) else None,
                         d_N_vector)
         result = self._qp.solve()

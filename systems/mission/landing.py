@@ -44,7 +44,7 @@ Beyond the paper (its field tests end the flight by hand; a vehicle must not hov
 until its battery dies):
 - Waypoint for `search_timeout` without a detection (the first search, or after a loss):
   Returning: fly to `takeoff_height` above the take-off point (within `landed_offset`, slower
-  than `velocity_threshold`), then Landing Home: descend at `takeoff_velocity`
+  than `home_speed`), then Landing Home: descend at `takeoff_velocity`
   to the ground, Landed when the estimate is within `home_touchdown` of the take-off height and
   slower than `home_touchdown` per s vertically. A detection while Returning resumes Follow;
   Landing Home is not cancelled.
@@ -68,7 +68,7 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (RANGE, REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE,
                                      VectorLayout)
-from alight.systems.mission.reference_generator import filter_reference
+from alight.systems.mission.reference_generator import filter_acceleration, filter_reference
 from alight.systems.params import bounded
 
 
@@ -81,6 +81,10 @@ class LandingMissionParams:
     takeoff_velocity: float = bounded(0.5, 0.05, 5.0, "m/s")    # z_dot_TakeOffVelocity
     cutoff_position: float = bounded(30.0, 0.01, 1000.0, "Hz")  # f_CutOffPosition
     cutoff_velocity: float = bounded(30.0, 0.01, 1000.0, "Hz")  # f_CutOffVelocity
+    # The target's horizontal acceleration (a turning car's), from its filtered velocity, fed
+    # to the reference (module text); 0: none, the paper's constant-velocity reference
+    cutoff_acceleration: float = bounded(0.5, 0.0, 1000.0, "Hz")
+    max_target_acceleration: float = bounded(3.0, 0.0, 30.0, "m/s^2")  # larger ones clipped
     t_prediction: float = bounded(0.1, 0.0, 5.0, "s")           # t_Prediction
     detection_timeout: float = bounded(0.5, 0.05, 60.0, "s")    # t_DetectionTimeOut (to Follow)
     sigma_k: float = bounded(3.0, 0.5, 10.0)                    # k of the k-sigma bounds below
@@ -104,6 +108,9 @@ class LandingMissionParams:
     # then Waypoint (0: the paper's return as soon as it is lost)
     pursuit_time: float = bounded(3.0, 0.0, 60.0, "s")
     home_touchdown: float = bounded(0.1, 0.01, 1.0, "m")         # on the ground at home within
+    # over home (Returning -> Landing Home) only this slow: on the managed stack the landoff
+    # tracker lands where its reference stops, 0.47 m past home from 0.8 m/s (measured)
+    home_speed: float = bounded(0.2, 0.01, 5.0, "m/s")
     # the rangefinder's confirmation of Landed (module text): both readings under this [m] (the
     # landed offset plus the range's lag and noise at 1.8 m/s); 0: the paper's rule alone
     touchdown_range: float = bounded(0.65, 0.0, 50.0, "m")
@@ -171,8 +178,8 @@ MISSION_STATUS = VectorLayout("mission_status", [
 # Discrete state: the status fields above, then the reference, the filtered target reference and
 # the start position.
 _STATE = VectorLayout("landing_mission_state", [
-    *MISSION_STATUS.fields, ("p_ref", 3), ("v_ref", 3), ("p_filtered", 3), ("v_filtered", 3),
-    ("start", 3)])
+    *MISSION_STATUS.fields, ("p_ref", 3), ("v_ref", 3), ("a_ref", 3), ("p_filtered", 3),
+    ("v_filtered", 3), ("a_filtered", 3), ("start", 3)])
 
 
 class LandingMission(LeafSystem):
@@ -214,7 +221,7 @@ class LandingMission(LeafSystem):
         x = self._x(context)
         output.SetFromVector(REFERENCE.pack(
             stamp=context.get_time(), p=_STATE.get(x, "p_ref"), v=_STATE.get(x, "v_ref"),
-            a=np.zeros(3), j=np.zeros(3), heading=np.radians(self._p.heading), heading_rate=0.0))
+            a=_STATE.get(x, "a_ref"), j=np.zeros(3), heading=np.radians(self._p.heading), heading_rate=0.0))
 
     def _calc_arm(self, context, output):
         mode = self._mode(context)
@@ -306,9 +313,10 @@ class LandingMission(LeafSystem):
             x[_STATE.slice("transition_time")] = now
             x[_STATE.slice("transitions")] += 1
 
-        def set_reference(position, velocity):
+        def set_reference(position, velocity, acceleration=np.zeros(3)):
             x[_STATE.slice("p_ref")] = position
             x[_STATE.slice("v_ref")] = velocity
+            x[_STATE.slice("a_ref")] = acceleration
 
         def follow_target(descent_rate: float):
             """L Fig. 8 reference: filtered predicted target horizontally; the altitude held
@@ -318,20 +326,27 @@ class LandingMission(LeafSystem):
             vertically after a bad re-acquisition (its z velocity -4.6 m/s at 5 m/s, VIO
             campaign) made Follow's reference sink at a held height and flew the vehicle into
             the ground."""
-            p_f, v_f = filter_reference(_STATE.get(x, "p_filtered"), _STATE.get(x, "v_filtered"),
+            v_before = _STATE.get(x, "v_filtered")
+            p_f, v_f = filter_reference(_STATE.get(x, "p_filtered"), v_before,
                                         p_T, v_T, p.t_prediction, p.cutoff_position,
                                         p.cutoff_velocity, p.period)
+            a_f = filter_acceleration(_STATE.get(x, "a_filtered"), v_before, v_f,
+                                      p.cutoff_acceleration, p.max_target_acceleration,
+                                      p.period)
             x[_STATE.slice("p_filtered")], x[_STATE.slice("v_filtered")] = p_f, v_f
+            x[_STATE.slice("a_filtered")] = a_f
             z_ref, ceiling = _STATE.get(x, "p_ref")[2], p.waypoint[2]
             if descent_rate > 0.0 or z_ref >= ceiling:
                 z = max(z_ref - descent_rate * p.period, p_T[2] - 0.5)  # not through the plate
             else:   # climbing back to Follow's height after an abort
                 z = min(z_ref + p.climb_rate * p.period, ceiling)
-            set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], (z - z_ref) / p.period])
+            set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], (z - z_ref) / p.period],
+                          [a_f[0], a_f[1], 0.0])
 
         def start_following():
             x[_STATE.slice("p_filtered")] = p_T + p.t_prediction * v_T
             x[_STATE.slice("v_filtered")] = v_T
+            x[_STATE.slice("a_filtered")] = 0.0
 
         if not estimate_ok and mode != Mode.IDLE:
             # No odometry: hold the last reference (the controller reports the bad estimate and
@@ -367,7 +382,7 @@ class LandingMission(LeafSystem):
                 go(Mode.RETURNING, Reason.SEARCH_TIMEOUT)
                 set_reference(home, np.zeros(3))
             elif mode == Mode.RETURNING and np.linalg.norm(p_B - home) <= p.landed_offset \
-                    and np.linalg.norm(v_B) <= p.velocity_threshold:
+                    and np.linalg.norm(v_B) <= p.home_speed:
                 go(Mode.LANDING_HOME, Reason.OVER_HOME)
         elif mode == Mode.LANDING_HOME:
             start = _STATE.get(x, "start")

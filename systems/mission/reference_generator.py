@@ -2,6 +2,12 @@
 ahead by t_prediction with its estimated velocity (constant-velocity model, to counteract the
 unmodelled delays of detection and control), then first-order low-pass filters on the reference
 position and velocity (cut-off frequencies of L Table 2) against jittery target estimates.
+
+Beyond the paper: the target's horizontal acceleration, the low-passed rate of change of the
+filtered velocity, is fed to the reference. The paper's reference moves on at constant velocity
+over the MPC's horizon (L Sec. 6.3); on the MBZIRC figure eight (10 m turn radius at 4.2 m/s, a
+1.7 m/s^2 centripetal acceleration) that straight extrapolation put every touchdown 32-41 cm
+outside the curve (docs/benchmarks.md, issue 23).
 """
 import numpy as np
 
@@ -25,3 +31,17 @@ def filter_reference(previous_p, previous_v, p_WT, v_WT, t_prediction: float,
     p = np.asarray(previous_p) + a_p * (target - previous_p)
     v = np.asarray(previous_v) + a_v * (np.asarray(v_WT) - previous_v)
     return p, v
+
+
+def filter_acceleration(previous_a, previous_v, v, cutoff: float, max_acceleration: float,
+                        period: float) -> np.ndarray:
+    """One step of the target acceleration's low pass at `cutoff` [Hz] toward the horizontal
+    rate of change of the filtered velocity (`previous_v` to `v` over `period`), its norm
+    clipped to `max_acceleration`; zero with cutoff 0 (the paper)."""
+    if cutoff <= 0.0:
+        return np.zeros(3)
+    rate = (np.asarray(v, float) - previous_v) / period
+    rate[2] = 0.0
+    a = np.asarray(previous_a, float) + low_pass_gain(cutoff, period) * (rate - previous_a)
+    size = float(np.linalg.norm(a))
+    return a * (max_acceleration / size) if size > max_acceleration else a
