@@ -182,15 +182,31 @@ def test_bad_scenario_values_are_refused_naming_the_key(tmp_path, capsys):
 
 
 @pytest.mark.mission
+def test_on_the_mbzirc_curve_the_car_s_acceleration_lands_the_vehicle_near_the_centre(tmp_path):
+    """`alight land --scenario mbzirc` in 15 km/h wind (seed 0), the scenario's defaults: the
+    reference carries the car's acceleration and the target EKF estimates it, so the touchdown on
+    the curve is within 20 cm of the platform's centre (measured 14.4 cm; 37 cm with the paper's
+    constant-velocity reference and EKF, the test below)."""
+    scenario = load_scenario("mbzirc", overrides=["vehicle.wind.mean_speed: 4.1667",
+                                                  "vehicle.wind.gust_std: 0.8"])
+    run = run_scenario(scenario, run_dir=tmp_path / "mbzirc")
+    score = assert_landed(run, scenario, scenario.target_motion.speed)
+    assert score.e_xy < 0.20, score.row()
+
+
+@pytest.mark.mission
 def test_a_landing_on_the_mbzirc_figure_eight_s_curve_rests_on_the_turning_platform(tmp_path):
     """`alight land --scenario mbzirc` in 15 km/h wind (seed 0): the car is on the figure-eight's
     curve at the touchdown, and the vehicle, standing 37 cm off the platform's centre, turns with
     it. It is at rest relative to the platform where it stands (its position in the platform's
     frame does not move), although its velocity differs from the centre's by about
     w x r = 0.29 rad/s x 0.37 m = 0.11 m/s: the judge once failed 18 of 20 such landings as
-    "not at rest on the platform"."""
-    scenario = load_scenario("mbzirc", overrides=["vehicle.wind.mean_speed: 4.1667",
-                                                  "vehicle.wind.gust_std: 0.8"])
+    "not at rest on the platform". Flown with the paper's constant-velocity reference and target
+    EKF, which stand the vehicle off the centre (with the car's acceleration it lands 15 cm off,
+    where w x r is too small to tell the judges apart; docs/landing.md "A turning car")."""
+    scenario = load_scenario("mbzirc", overrides=[
+        "vehicle.wind.mean_speed: 4.1667", "vehicle.wind.gust_std: 0.8",
+        "mission.cutoff_acceleration: 0.0", "onboard.perception.ekf.sigma_acc: [0.0, 0.0, 0.0]"])
     run = run_scenario(scenario, run_dir=tmp_path / "mbzirc")
     score = assert_landed(run, scenario, scenario.target_motion.speed)
     truth = run["ground_truth"]

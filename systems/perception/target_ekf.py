@@ -11,6 +11,13 @@ h_t = u(T_CW T_WT r_t) (L(9)) in the rectified pinhole image, L(32), whose Jacob
 D = I; for the global perturbation d(R_WT r_t)/d alpha = -[R_WT r_t]x (L(35) prints the opposite
 sign); Joseph-form covariance update; multiplicative orientation update q+ = exp(dalpha) * q-.
 Residuals failing the chi-square test (d^2 > 9, L Sec. 5.2.2) are rejected.
+
+Beyond the paper (issue 23): with `sigma_acc` > 0 the state also holds the target's acceleration
+a_WT (error state [dp, dalpha, dv, da], 12), predicted constant with white-noise jerk of density
+sigma_acc: p += v dt + a dt^2 / 2, v += a dt. A car in a turn accelerates sideways; the paper's
+constant-velocity model then lets the velocity estimate lag the car's turning velocity (0.1 m/s
+sideways on the MBZIRC curve, the vehicle drifting to the outside of the turn). sigma_acc zero:
+the paper's 9-state filter, exactly.
 """
 import dataclasses as dc
 
@@ -25,15 +32,18 @@ from alight.systems.rotations import (quaternion_from_rotation_vector, quaternio
 class TargetEkfParams:
     sigma_rot: list[float] = bounded([0.02, 0.02, 0.2], 0.0, 10.0, "rad/sqrt(Hz)")
     sigma_vel: list[float] = bounded([0.1, 0.1, 0.1], 0.0, 100.0, "m/s/sqrt(Hz)")
+    # white-noise jerk density of the acceleration state; all zero: no such state (the paper)
+    sigma_acc: list[float] = bounded([0.0, 0.0, 0.0], 0.0, 100.0, "m/s^2/sqrt(Hz)")
     keypoint_noise_std: float = bounded(5.0, 0.01, 100.0, "px")        # L Sec. 5.2.2
     chi2_threshold: float = bounded(9.0, 0.1, 1000.0)                   # L Sec. 5.2.2
     initial_position_std: float = bounded(0.03, 0.0, 1.0)   # x range, from a detection
     initial_position_std_min: float = bounded(0.05, 0.0, 10.0, "m")
     initial_rotation_std: float = bounded(5.0, 0.0, 180.0, "deg")
     initial_velocity_std: float = bounded(5.0, 0.0, 100.0, "m/s")
+    initial_acceleration_std: float = bounded(1.0, 0.0, 100.0, "m/s^2")
 
 
-_I3, _I9 = np.eye(3), np.eye(9)
+_I3 = np.eye(3)
 
 
 def skew(a: np.ndarray) -> np.ndarray:
@@ -44,20 +54,24 @@ def skew(a: np.ndarray) -> np.ndarray:
 class KeypointPrediction:
     """h_t and its Jacobian for one keypoint at the current state."""
     uv: np.ndarray      # (2,) rectified pixels
-    H: np.ndarray       # (2, 9)
+    H: np.ndarray       # (2, n): n = 9, or 12 with the acceleration state
     p_CK: np.ndarray    # (3,) the keypoint in the camera frame
 
 
 class TargetEkf:
-    """The filter's state at time `t`: p, q (w, x, y, z), v in W (= the state estimate's frame), P."""
+    """The filter's state at time `t`: p, q (w, x, y, z), v, a (zero without the acceleration
+    state) in W (= the state estimate's frame), P (n x n)."""
 
     def __init__(self, params: TargetEkfParams):
         self.params = params
+        self.n = 12 if np.any(np.asarray(params.sigma_acc) > 0) else 9
+        self._I = np.eye(self.n)
         self.t = float("nan")
         self.p = np.zeros(3)
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.v = np.zeros(3)
-        self.P = np.eye(9)
+        self.a = np.zeros(3)
+        self.P = np.eye(self.n)
         self._R = params.keypoint_noise_std ** 2 * np.eye(2)
 
     @property
@@ -71,28 +85,43 @@ class TargetEkf:
         self.p = np.array(p_WT, float)
         self.q = np.array(q_WT, float) / np.linalg.norm(q_WT)
         self.v = np.zeros(3)
+        self.a = np.zeros(3)
         sp = max(k.initial_position_std * range_m, k.initial_position_std_min)
         self.P = np.diag([sp ** 2] * 3 + [np.radians(k.initial_rotation_std) ** 2] * 3
-                         + [k.initial_velocity_std ** 2] * 3)
+                         + [k.initial_velocity_std ** 2] * 3
+                         + [k.initial_acceleration_std ** 2] * (self.n - 9))
 
     # --- prediction, L(28)-(31) ---------------------------------------------------------------
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """F_d (L(31)) and the discrete process noise Q over dt."""
-        F = np.eye(9)
-        F[0:3, 6:9] = dt * np.eye(3)
+        """F_d (L(31)) and the discrete process noise Q over dt (white-noise acceleration on v;
+        with the acceleration state also white-noise jerk on a, integrated exactly)."""
+        n = self.n
+        F = np.eye(n)
+        F[0:3, 6:9] = dt * _I3
         s_vel2 = np.square(self.params.sigma_vel)
-        Q = np.zeros((9, 9))
+        Q = np.zeros((n, n))
         Q[0:3, 0:3] = np.diag(s_vel2 * dt ** 3 / 3)
         Q[0:3, 6:9] = Q[6:9, 0:3] = np.diag(s_vel2 * dt ** 2 / 2)
         Q[6:9, 6:9] = np.diag(s_vel2 * dt)
         Q[3:6, 3:6] = np.diag(np.square(self.params.sigma_rot) * dt)
+        if n == 12:
+            F[0:3, 9:12] = dt * dt / 2 * _I3
+            F[6:9, 9:12] = dt * _I3
+            s_acc2 = np.square(self.params.sigma_acc)
+            blocks = {(0, 0): dt ** 5 / 20, (0, 6): dt ** 4 / 8, (0, 9): dt ** 3 / 6,
+                      (6, 6): dt ** 3 / 3, (6, 9): dt ** 2 / 2, (9, 9): dt}
+            for (i, j), c in blocks.items():
+                Q[i:i + 3, j:j + 3] += np.diag(s_acc2 * c)
+                if i != j:
+                    Q[j:j + 3, i:i + 3] += np.diag(s_acc2 * c)
         return F, Q
 
     def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(p, q, v, P) predicted to t >= self.t without changing the filter."""
         dt = max(0.0, t - self.t)
         F, Q = self.transition(dt)
-        return self.p + self.v * dt, self.q.copy(), self.v.copy(), F @ self.P @ F.T + Q
+        return (self.p + (self.v + self.a * (dt / 2)) * dt, self.q.copy(), self.v + self.a * dt,
+                F @ self.P @ F.T + Q)
 
     def predict(self, t: float) -> None:
         if t > self.t:
@@ -114,7 +143,7 @@ class TargetEkf:
         U = np.array([[K[0, 0] / z, 0.0, -K[0, 0] * x / z ** 2],
                       [0.0, K[1, 1] / z, -K[1, 1] * y / z ** 2]])   # L(34), D = I
         J = np.hstack([_I3, -skew(r_W)])                             # L(35)
-        H = np.zeros((2, 9))
+        H = np.zeros((2, self.n))
         H[:, 0:6] = U @ R_CW @ J                                     # L(33)
         uv = np.array([K[0, 0] * x / z + K[0, 2], K[1, 1] * y / z + K[1, 2]])
         return KeypointPrediction(uv, H, p_CK)
@@ -139,7 +168,9 @@ class TargetEkf:
         self.q = quaternion_product(quaternion_from_rotation_vector(dx[3:6]), self.q)
         self.q /= np.linalg.norm(self.q)
         self.v = self.v + dx[6:9]
-        A = _I9 - K @ H
+        if self.n == 12:
+            self.a = self.a + dx[9:12]
+        A = self._I - K @ H
         self.P = A @ self.P @ A.T + K @ self._R @ K.T
         self.P = (self.P + self.P.T) / 2
         return True, d2

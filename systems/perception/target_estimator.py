@@ -445,8 +445,9 @@ def _reexpress(ekf: TargetEkf, p_OldNew, q_OldNew) -> None:
     R = rotation_matrix(q_NewOld)
     ekf.p = R @ (ekf.p - np.asarray(p_OldNew, float))
     ekf.v = R @ ekf.v
+    ekf.a = R @ ekf.a
     ekf.q = quaternion_product(q_NewOld, ekf.q)
-    G = np.kron(np.eye(3), R)
+    G = np.kron(np.eye(ekf.n // 3), R)
     ekf.P = G @ ekf.P @ G.T
 
 
