@@ -322,6 +322,31 @@ def test_a_turning_target_s_acceleration_is_estimated_toward_the_centre_of_its_t
     np.testing.assert_array_equal(filter_acceleration(a, v_before, v + 1.0, 0.0, 3.0, period), 0.0)
 
 
+def test_the_mission_s_reference_carries_a_turning_car_s_acceleration():
+    """On the car circling at 15 km/h on 10 m (1.74 m/s^2 toward the centre), followed by the
+    ideal vehicle and landed on 2.7 s after the detection: at the touchdown the reference's
+    horizontal acceleration points to the centre within 12 degrees (measured 8) and has its size
+    within 15 % (the 0.5 Hz low pass), and none vertically."""
+    radius, speed = 10.0, 15 / 3.6
+    rate = speed / radius
+    angle = lambda t: rate * (t - 20.0)
+
+    def circling(t):
+        a = angle(t)
+        return (np.array([radius * np.sin(a), radius * (1 - np.cos(a)), PLATFORM_Z]),
+                speed * np.array([np.cos(a), np.sin(a), 0.0]))
+    logs = fly(circling, 20.0)
+    landed = [at for at, mode, _ in transitions(logs) if mode == Mode.LANDED][0]
+    t, reference = logs["reference"]
+    last = np.flatnonzero(t < landed)[-1]   # (the reference freezes once landed)
+    acceleration = reference[last, REFERENCE.slice("a")]
+    inward = np.array([-np.sin(angle(t[last])), np.cos(angle(t[last]))])
+    assert np.degrees(np.arccos(acceleration[:2] @ inward / np.linalg.norm(acceleration[:2]))) \
+        < 12.0
+    assert np.linalg.norm(acceleration) == pytest.approx(speed * rate, rel=0.15)
+    assert acceleration[2] == 0.0
+
+
 def test_nan_target_estimate_is_not_a_detection():
     nan_target = lambda t: (np.full(3, np.nan), np.zeros(3)) if t > 17.0 else None
     events = transitions(fly(nan_target, 22.0))

@@ -85,6 +85,9 @@ class LandingMissionParams:
     # to the reference (module text); 0: none, the paper's constant-velocity reference
     cutoff_acceleration: float = bounded(0.5, 0.0, 1000.0, "Hz")
     max_target_acceleration: float = bounded(3.0, 0.0, 30.0, "m/s^2")  # larger ones clipped
+    # ... learned only while the EKF's horizontal velocity std is under this: its velocity
+    # converging after a detection (3 -> 0.06 m/s std in 0.6 s) is not the car's acceleration
+    acceleration_velocity_std: float = bounded(0.1, 0.001, 10.0, "m/s")
     t_prediction: float = bounded(0.1, 0.0, 5.0, "s")           # t_Prediction
     detection_timeout: float = bounded(0.5, 0.05, 60.0, "s")    # t_DetectionTimeOut (to Follow)
     sigma_k: float = bounded(3.0, 0.5, 10.0)                    # k of the k-sigma bounds below
@@ -294,6 +297,9 @@ class LandingMission(LeafSystem):
             # No usable estimate now: continue on the last filtered target motion.
             v_T = _STATE.get(x, "v_filtered")
             p_T = _STATE.get(x, "p_filtered") + v_T * p.period - p.t_prediction * v_T
+        # (lost: the last motion continues, its acceleration decays in the low pass)
+        velocity_settled = not tracked or bool(np.sqrt(np.max(TARGET_ESTIMATE.get(
+            target, "var_v")[:2])) <= p.acceleration_velocity_std)
         height = p_B[2] - p_T[2]
         t_blind = time_to_touchdown(min(height, p.blind_height), p)
         sigma_go = horizontal_sigma(target, t_blind, p.target_velocity_noise) \
@@ -332,7 +338,7 @@ class LandingMission(LeafSystem):
                                         p.cutoff_velocity, p.period)
             a_f = filter_acceleration(_STATE.get(x, "a_filtered"), v_before, v_f,
                                       p.cutoff_acceleration, p.max_target_acceleration,
-                                      p.period)
+                                      p.period) if velocity_settled else np.zeros(3)
             x[_STATE.slice("p_filtered")], x[_STATE.slice("v_filtered")] = p_f, v_f
             x[_STATE.slice("a_filtered")] = a_f
             z_ref, ceiling = _STATE.get(x, "p_ref")[2], p.waypoint[2]
