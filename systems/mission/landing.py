@@ -224,7 +224,8 @@ class LandingMission(LeafSystem):
         x = self._x(context)
         output.SetFromVector(REFERENCE.pack(
             stamp=context.get_time(), p=_STATE.get(x, "p_ref"), v=_STATE.get(x, "v_ref"),
-            a=_STATE.get(x, "a_ref"), j=np.zeros(3), heading=np.radians(self._p.heading), heading_rate=0.0))
+            a=_STATE.get(x, "a_ref"), j=np.zeros(3), heading=np.radians(self._p.heading),
+            heading_rate=0.0))
 
     def _calc_arm(self, context, output):
         mode = self._mode(context)
@@ -319,7 +320,7 @@ class LandingMission(LeafSystem):
             x[_STATE.slice("transition_time")] = now
             x[_STATE.slice("transitions")] += 1
 
-        def set_reference(position, velocity, acceleration=np.zeros(3)):
+        def set_reference(position, velocity, acceleration=(0.0, 0.0, 0.0)):
             x[_STATE.slice("p_ref")] = position
             x[_STATE.slice("v_ref")] = velocity
             x[_STATE.slice("a_ref")] = acceleration
