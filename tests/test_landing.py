@@ -96,10 +96,12 @@ def test_target_swerving_in_the_blind_descent_is_scored_failed_by_the_physics(la
 @pytest.mark.mission
 def test_a_descent_beside_the_swerving_car_goes_around_on_the_rangefinder_and_lands(landing,
                                                                                    tmp_path):
-    """Pulled 0.1 s into Phase 2, the car leaves the descent's footprint: at the landed height
-    by the estimate the rangefinder reads the road, so the mission does not disarm there
-    (L's rule would have, 1.3 m above the road) but goes back to Follow (MISSED_PLATFORM),
-    climbs, catches the car again and lands on it. Flown on the paper's constant-velocity
+    """Pulled 0.1 s into Phase 2, the car leaves the descent's footprint: below the blind
+    height the rangefinder reads the road, so the mission does not go on to disarm (L's rule
+    would have, 1.3 m above the road) but goes back to Follow (MISSED_PLATFORM), climbs clear,
+    catches the car again and lands on it. (Found only at the landed height, the go-around
+    began 0.35 s later with the body below the platform's top beside its corner, and in one
+    realization the airframe struck the car.) Flown on the paper's constant-velocity
     reference: with the car's acceleration fed forward (the default since c907d75) the vehicle
     is 8 cm nearer the platform's centre when the car is pulled, stays over its edge as the car
     leaves, and its legs graze the edge (130 N) as it goes around: the physics scores that

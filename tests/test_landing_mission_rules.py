@@ -199,12 +199,16 @@ def test_touchdown_comes_on_the_range_when_the_estimate_is_high():
 
 def test_a_landing_beside_the_car_is_not_disarmed_but_climbs_back_and_lands_again():
     """The rangefinder sees the road (the platform 1 m lower than the estimate says) during the
-    first descent: at the landed height the mission does not disarm 1.3 m above the road, it
-    goes back to Follow (MISSED_PLATFORM), climbs back to the waypoint's height and, over the
+    first descent: the mission does not go on to disarm 1.3 m above the road; once blind (below
+    `blind_height`) and the range 1 m longer than the estimated height (over `range_miss_margin`)
+    it goes back to Follow (MISSED_PLATFORM), climbs back to the waypoint's height and, over the
     car again, lands."""
     target = moving_target(2.0, appear=17.0)
-    landed_at = transitions(fly(target, 60.0))[-1][0]
+    nominal = transitions(fly(target, 60.0))
+    landed_at = nominal[-1][0]
     beside_until = landed_at + 2.0
+    p = LandingMissionParams()
+    blind_at = nominal[-2][0] + (p.landing_p2_offset - p.blind_height) / p.descending_p2
 
     def road_then_platform(t, p):
         return (p[2] if t < beside_until else p[2] - PLATFORM_Z), True, 0.0
@@ -212,7 +216,7 @@ def test_a_landing_beside_the_car_is_not_disarmed_but_climbs_back_and_lands_agai
     events = transitions(logs)
     missed = [e for e in events if e[2] == Reason.MISSED_PLATFORM]
     assert len(missed) == 1 and missed[0][1] == Mode.FOLLOW
-    assert missed[0][0] == pytest.approx(landed_at, abs=0.06)   # where it would have disarmed
+    assert missed[0][0] == pytest.approx(blind_at, abs=0.06)    # 1 m above the platform
     t, arm = logs["arm"]
     assert np.all(arm[(t > 2.0) & (t < beside_until), 0] == 1.0)  # not disarmed beside the car
     t_ref, reference = logs["reference"]
@@ -221,6 +225,45 @@ def test_a_landing_beside_the_car_is_not_disarmed_but_climbs_back_and_lands_agai
     assert np.all(np.diff(z)[after[1:]] > 0.0)                  # climbing back
     assert [m for _, m, _ in events[-3:]] == [Mode.LANDING_P1, Mode.LANDING_P2, Mode.LANDED]
     assert events[-1][2] == Reason.BELOW_LANDED_OFFSET
+
+
+def test_going_around_the_vehicle_climbs_clear_before_it_closes_on_the_car_again():
+    """The car pulled 1 m aside from under the vehicle 0.4 m above its platform (the rangefinder
+    reads the road from then on) and re-acquired beside it: the horizontal reference goes on at
+    the velocity it had, not toward the car, until the vehicle is `go_around_clearance` above
+    the platform (closing at once ran the legs into the platform's edge as the car pulled away,
+    tests/test_landing.py); then it closes on the car and lands."""
+    params = LandingMissionParams()
+    t, reference = fly(moving_target(2.0, appear=17.0), 60.0)["reference"]
+    descended = (t > 15.0) & (reference[:, REFERENCE.slice("p")][:, 2] < PLATFORM_Z + 0.45)
+    miss_at = t[np.argmax(descended)]   # the car pulled away 0.4 m under the vehicle
+    beside_until = miss_at + 2.0
+    base = moving_target(2.0, appear=17.0, hide=[(miss_at - 0.8, miss_at + 0.02)])
+
+    def pulled_aside(t):
+        seen = base(t)
+        return None if seen is None else (seen[0] + [1.0 if t > miss_at else 0.0, 0, 0],
+                                          seen[1])
+
+    def road_beside(t, p):
+        return (p[2] if miss_at < t < beside_until else p[2] - PLATFORM_Z), True, 0.0
+    logs = fly(pulled_aside, 60.0, rangefinder=road_beside)
+    events = transitions(logs)
+    missed = [e for e in events if e[2] == Reason.MISSED_PLATFORM]
+    assert len(missed) == 1 and missed[0][0] == pytest.approx(miss_at, abs=0.1 + 1e-9)
+    t, reference = logs["reference"]
+    p, v = reference[:, REFERENCE.slice("p")], reference[:, REFERENCE.slice("v")]
+    clear = PLATFORM_Z + params.go_around_clearance
+    after = t >= missed[0][0]
+    cleared = t[after & (p[:, 2] >= clear)][0]
+    climbing = after & (t < cleared)
+    assert climbing.sum() >= 2
+    assert np.abs(p[climbing, 0]).max() < 0.01                  # not toward the car at x = 1
+    np.testing.assert_allclose(v[climbing, 1], 2.0, atol=1e-9)  # on at the car's old velocity
+    assert np.all(np.diff(p[climbing, 2]) > 0.0)
+    above = (t > missed[0][0]) & (p[:, 2] > clear + 0.2)
+    assert p[above, 0].max() == pytest.approx(1.0, abs=0.01)    # then over the car
+    assert events[-1][1:] == (Mode.LANDED, Reason.BELOW_LANDED_OFFSET)
 
 
 @pytest.mark.parametrize("reading", [

@@ -53,7 +53,13 @@ until its battery dies):
   Landed needs the estimated height above the target and the range both under `touchdown_range`
   and one of them under `landed_offset`; an estimate at the landed height over a range beyond
   `touchdown_range` is a vehicle beside the car (it disarmed 1.3 m above the road in a 5 m/s
-  campaign, VIO): Follow, climbing back (reason MISSED_PLATFORM). Without a fresh range (none
+  campaign, VIO): Follow, climbing back (reason MISSED_PLATFORM); so is, earlier, a range longer
+  than the estimated height by `range_miss_margin` once the vehicle is below `blind_height` (the
+  camera no longer sees the pattern there; found at the landed height only, the go-around began
+  with the body below the platform's top, beside its corner, and the airframe struck the car). It climbs first: until it is
+  `go_around_clearance` above the target the horizontal reference goes on at the velocity it had
+  (the car re-acquired beside it is closed on only from above the platform: closing at once ran
+  the legs into the platform's edge as the car pulled away). Without a fresh range (none
   fitted, out of range, tilted), the paper's rule on the estimate alone.
 
 Every transition is counted and published with its time and reason on `mission_status`.
@@ -117,6 +123,13 @@ class LandingMissionParams:
     # the rangefinder's confirmation of Landed (module text): both readings under this [m] (the
     # landed offset plus the range's lag and noise at 1.8 m/s); 0: the paper's rule alone
     touchdown_range: float = bounded(0.65, 0.0, 50.0, "m")
+    # going around after MISSED_PLATFORM: the vehicle climbs this high above the target (by the
+    # estimate) on the motion it had before it closes on the car again (module text); 0: at once
+    go_around_clearance: float = bounded(0.6, 0.0, 50.0, "m")
+    # below `blind_height` a range longer than the estimated height above the target by more
+    # than this is the ground beside the car (the platform stands 1 m above it): go around
+    # then, not only at the landed height (0: only there)
+    range_miss_margin: float = bounded(0.5, 0.0, 50.0, "m")
     range_timeout: float = bounded(0.2, 0.0, 5.0, "s")           # an older range is not used
 
 
@@ -278,6 +291,8 @@ class LandingMission(LeafSystem):
             return Reason.BELOW_LANDED_OFFSET
         if height <= p.landed_offset:   # the estimate is down, the range sees no platform
             return Reason.MISSED_PLATFORM
+        if 0.0 < p.range_miss_margin < distance - height and height <= p.blind_height:
+            return Reason.MISSED_PLATFORM   # blind, over the ground beside the car
         return None
 
     def _update(self, context, discrete_state):
@@ -311,6 +326,7 @@ class LandingMission(LeafSystem):
         x[_STATE.slice("predicted_miss")] = e_xy + p.sigma_k * sigma_go
         certain = bool(p.sigma_k * sigma_go <= p.miss_limit)   # False when not tracked (nan)
         mode = Mode(int(_STATE.get(x, "mode")))
+        reference_before = _STATE.get(x, "p_ref").copy(), _STATE.get(x, "v_ref").copy()
 
         def go(new_mode: Mode, reason: Reason):
             nonlocal mode
@@ -349,6 +365,17 @@ class LandingMission(LeafSystem):
                 z = min(z_ref + p.climb_rate * p.period, ceiling)
             set_reference([p_f[0], p_f[1], z], [v_f[0], v_f[1], (z - z_ref) / p.period],
                           [a_f[0], a_f[1], 0.0])
+
+        def climb_clear():
+            """Going around (MISSED_PLATFORM): below `go_around_clearance` above the target the
+            horizontal reference moves on at its own velocity instead of closing on the car."""
+            if Reason(int(_STATE.get(x, "reason"))) != Reason.MISSED_PLATFORM or \
+                    height >= p.go_around_clearance:
+                return
+            p_before, v_before = reference_before
+            x[_STATE.slice("p_ref")][:2] = p_before[:2] + v_before[:2] * p.period
+            x[_STATE.slice("v_ref")][:2] = v_before[:2]
+            x[_STATE.slice("a_ref")][:2] = 0.0
 
         def start_following():
             x[_STATE.slice("p_filtered")] = p_T + p.t_prediction * v_T
@@ -409,8 +436,10 @@ class LandingMission(LeafSystem):
                 if mode == Mode.LANDING_P1:
                     go(Mode.FOLLOW, Reason.TARGET_LOST)
                 follow_target(0.0)
+                climb_clear()
             elif mode == Mode.FOLLOW:
                 follow_target(0.0)
+                climb_clear()
                 e_v = np.linalg.norm(v_B[:2] - v_T[:2])
                 at_height = _STATE.get(x, "p_ref")[2] >= p.waypoint[2]
                 if at_height and e_xy <= p.position_threshold and \
@@ -430,6 +459,7 @@ class LandingMission(LeafSystem):
             if touchdown == Reason.MISSED_PLATFORM:
                 go(Mode.FOLLOW, touchdown)
                 follow_target(0.0)
+                climb_clear()
             else:
                 follow_target(p.descending_p2)
                 if touchdown == Reason.BELOW_LANDED_OFFSET:

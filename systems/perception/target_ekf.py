@@ -78,18 +78,21 @@ class TargetEkf:
     def initialized(self) -> bool:
         return np.isfinite(self.t)
 
-    def initialize(self, t: float, p_WT: np.ndarray, q_WT: np.ndarray, range_m: float) -> None:
-        """From a full detection at time t (velocity zero, L Sec. 5.2.2)."""
+    def initialize(self, t: float, p_WT: np.ndarray, q_WT: np.ndarray, range_m: float,
+                   motion: tuple[np.ndarray, np.ndarray, float] | None = None) -> None:
+        """From a full detection at time t: velocity zero (L Sec. 5.2.2), or `motion` (v, a and
+        the velocity's std [m/s]: a re-initialization that keeps a known motion, beyond the
+        paper)."""
         k = self.params
         self.t = float(t)
         self.p = np.array(p_WT, float)
         self.q = np.array(q_WT, float) / np.linalg.norm(q_WT)
-        self.v = np.zeros(3)
-        self.a = np.zeros(3)
+        v, a, sv = (np.zeros(3), np.zeros(3), k.initial_velocity_std) if motion is None \
+            else (np.array(motion[0], float), np.array(motion[1], float), float(motion[2]))
+        self.v, self.a = v, a
         sp = max(k.initial_position_std * range_m, k.initial_position_std_min)
         self.P = np.diag([sp ** 2] * 3 + [np.radians(k.initial_rotation_std) ** 2] * 3
-                         + [k.initial_velocity_std ** 2] * 3
-                         + [k.initial_acceleration_std ** 2] * (self.n - 9))
+                         + [sv ** 2] * 3 + [k.initial_acceleration_std ** 2] * (self.n - 9))
 
     # --- prediction, L(28)-(31) ---------------------------------------------------------------
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
