@@ -111,17 +111,41 @@ def test_a_reference_step_is_allowed_and_the_allowance_shrinks_at_the_step_speed
     assert bench.status("failsafe_cause") == FailsafeCause.CONTROL_ERROR
 
 
-def test_a_reference_moving_with_its_own_velocity_is_no_step():
+def test_a_reference_moving_with_its_own_velocity_is_no_step_but_may_lead_by_a_chase():
+    """A reference moving at v is no step; a vehicle accelerating after it at
+    `chase_acceleration` (3 m/s^2) lags it by up to v^2 / (2 a): 1.5 m at 3 m/s."""
     bench = SwitchBench()
     bench.run(0.1)
     k = 0
-    while bench.status("mode") == ManagerMode.NORMAL and k < 50:
+    while bench.status("mode") == ManagerMode.NORMAL and k < 60:
         k += 1                          # 3 m/s, updated at 20 Hz, the vehicle left behind
         bench.set(reference=reference([0.15 * k, 0.0, 5.0], v=[3.0, 0.0, 0.0]))
         bench.run(0.05)
-    assert k == 34                      # the first sample over 5 m (5.1 m): no allowance grew
+    assert k == 44                      # the first sample over 5 + 1.5 m (6.6 m): no step grew
     assert bench.status("failsafe_cause") == FailsafeCause.CONTROL_ERROR
-    assert bench.status("control_error") == pytest.approx(5.1)
+    assert bench.status("control_error") == pytest.approx(6.6)
+
+
+def test_a_car_at_8_ms_may_lead_the_vehicle_by_10_m_one_at_4_ms_by_7_7_m():
+    """The car passing the vehicle at the waypoint at 8 m/s led it by 9-10 m while it
+    accelerated (campaign, issue 23): 5 m + 8^2 / 6 = 15.7 m are allowed; behind a reference at
+    4 m/s, 5 + 2.7 m."""
+    bench = SwitchBench()
+    bench.run(0.1)
+    for k in range(1, 26):              # 8 m/s at 20 Hz: 10 m ahead after 1.25 s
+        bench.set(reference=reference([0.4 * k, 0.0, 5.0], v=[8.0, 0.0, 0.0]))
+        bench.run(0.05)
+    assert bench.status("control_error") == pytest.approx(10.0)
+    assert bench.status("mode") == ManagerMode.NORMAL
+    bench = SwitchBench()
+    bench.run(0.1)
+    k = 0
+    while bench.status("mode") == ManagerMode.NORMAL and k < 60:
+        k += 1
+        bench.set(reference=reference([0.2 * k, 0.0, 5.0], v=[4.0, 0.0, 0.0]))
+        bench.run(0.05)
+    assert bench.status("control_error") == pytest.approx(7.8)   # the first sample over 7.67 m
+    assert bench.status("failsafe_cause") == FailsafeCause.CONTROL_ERROR
 
 
 def test_nothing_is_watched_before_the_take_off_and_after_the_mission_disarmed():

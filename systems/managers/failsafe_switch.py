@@ -6,8 +6,11 @@ It hands over to the feedforward failsafe controller (M Sec. 5.10), as the contr
 - no valid state estimate (BAD_ESTIMATE);
 - the controller reports `valid = 0` (its estimate, its solver), or its command is not usable:
   NaN or infinite anywhere, thrust out of [0, 1] (BAD_CONTROLLER, `controller_failed`);
-- a control error |p_ref - p_EB| over `failsafe_threshold` plus the step allowance
-  (CONTROL_ERROR);
+- a control error |p_ref - p_EB| over `failsafe_threshold` plus the step allowance plus the
+  chase allowance (CONTROL_ERROR): a vehicle that accelerates at `chase_acceleration` after a
+  reference moving at v falls v^2 / (2 a) behind it before it is up to speed (issue 23: a car at
+  8 m/s, passing the vehicle hovering at the waypoint, led it by 9-10 m, over the fixed 8 m,
+  and the failsafe landed the vehicle on the road);
 - the flight controller flying its own failsafe descent (`fc_status` mode FAILSAFE_DESCENT: the
   command link was lost, PX4's offboard loss), which no longer obeys the mission's commands
   (FLIGHT_CONTROLLER). Found by the fault campaign (bench/faults.py): the landing mission, not
@@ -50,6 +53,8 @@ class FailsafeSwitchParams:
     period: float = bounded(0.01, 0.001, 0.1, "s")      # with the failsafe controller, 100 Hz
     failsafe_threshold: float = bounded(8.0, 0.1, 1000.0, "m")   # control error beyond steps
     step_speed: float = bounded(1.0, 0.01, 100.0, "m/s")   # the allowance for a step shrinks
+    # the vehicle's horizontal acceleration behind a moving reference (module text)
+    chase_acceleration: float = bounded(3.0, 0.1, 100.0, "m/s^2")
     failsafe: FailsafeParams = param_file(FailsafeParams, "failsafe.yaml")
 
 
@@ -159,7 +164,8 @@ class FailsafeSwitch(CommandSwitch):
             cause = FailsafeCause.BAD_ESTIMATE
         elif controller_failed(self._status.Eval(context), self._commands[0].Eval(context)):
             cause = FailsafeCause.BAD_CONTROLLER
-        elif not error <= self._p.failsafe_threshold + S.get(x, "allowance"):
+        elif not error <= self._p.failsafe_threshold + S.get(x, "allowance") \
+                + self._chase_allowance(reference):
             cause = FailsafeCause.CONTROL_ERROR
         elif FC_STATUS.get(self._fc_status.Eval(context), "mode") \
                 == ActiveMode.FAILSAFE_DESCENT:
@@ -168,6 +174,12 @@ class FailsafeSwitch(CommandSwitch):
             x[S.slice("mode")] = ManagerMode.FAILSAFE
             x[S.slice("failsafe_cause")] = cause
         return x
+
+    def _chase_allowance(self, reference: np.ndarray) -> float:
+        """v^2 / (2 a): how far a vehicle accelerating at `chase_acceleration` falls behind a
+        reference moving horizontally at v before it is up to speed."""
+        v = REFERENCE.get(reference, "v")[:2]
+        return float(v @ v) / (2.0 * self._p.chase_acceleration)
 
     def _follow_reference(self, x: np.ndarray, reference: np.ndarray, now: float, flying: bool,
                           estimate) -> None:
