@@ -63,7 +63,8 @@ def fly_pass(vehicle_config, seed: int, speed: float = SPEED, climb: str = CLIMB
                         down_camera=DownCameraParams(source="geometric"))
     builder = DiagramBuilder()
     vehicle = builder.AddNamedSystem("vehicle", make_sim_vehicle(config))
-    pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile(climb), pilot_model(config.airframe)))
+    pilot = builder.AddNamedSystem("pilot", ScriptedPilot(profile(climb),
+                                                          pilot_model(config.airframe)))
     builder.Connect(pilot.GetOutputPort("fc_command"), vehicle.GetInputPort("fc_command"))
     state_estimate = add_mocap(builder, vehicle.GetOutputPort("ground_truth"), MocapParams())
     perception = add_target_perception(builder, vehicle.GetOutputPort("down_image"),

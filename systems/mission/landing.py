@@ -56,11 +56,12 @@ until its battery dies):
   campaign, VIO): Follow, climbing back (reason MISSED_PLATFORM); so is, earlier, a range longer
   than the estimated height by `range_miss_margin` once the vehicle is below `blind_height` (the
   camera no longer sees the pattern there; found at the landed height only, the go-around began
-  with the body below the platform's top, beside its corner, and the airframe struck the car). It climbs first: until it is
-  `go_around_clearance` above the target the horizontal reference goes on at the velocity it had
-  (the car re-acquired beside it is closed on only from above the platform: closing at once ran
-  the legs into the platform's edge as the car pulled away). Without a fresh range (none
-  fitted, out of range, tilted), the paper's rule on the estimate alone.
+  with the body below the platform's top, beside its corner, and the airframe struck the car).
+  It climbs first: until it is `go_around_clearance` above the target the horizontal reference
+  goes on at the velocity it had (the car re-acquired beside it is closed on only from above the
+  platform: closing at once ran the legs into the platform's edge as the car pulled away).
+  Without a fresh range (none fitted, out of range, tilted), the paper's rule on the estimate
+  alone.
 
 Every transition is counted and published with its time and reason on `mission_status`.
 Positions are those of the state estimate's frame E, in which the target estimate is expressed.

@@ -5,13 +5,12 @@ Each new frame is placed in time by its stamp: the camera pose T_WD of L(9) is t
 interpolated at the stamp (a short history of `state_estimate` samples is kept) times the camera
 extrinsics X_BC of the frame's calibration. With an initialized filter that knows the target's
 velocity (`track_velocity_std`; until then the detector runs first, the tracker only where it
-finds nothing) the keypoints are tracked from the predicted pose and fused one by one (not those predicted closer to the camera than
-`min_keypoint_depth`, where the projection's linearization fails: after touchdown the camera sits
-14 cm above the pattern and sees its centre keypoint alone, and that bearing, fused frame after
-frame, dragged the estimate along its ray far beyond the covariance); when fewer than
-`min_tracked_keypoints` are accepted, the
-detector runs and its corners are fused the same way, or, with no accepted keypoint for
-`reinit_after`, or when the filter rejects most keypoints of the detection (a track kept alive by
+finds nothing) the keypoints are tracked from the predicted pose and fused one by one (not those
+predicted closer to the camera than `min_keypoint_depth`, where the projection's linearization
+fails: after touchdown the camera sits 14 cm above the pattern and sees its centre keypoint
+alone, and that bearing, fused frame after frame, dragged the estimate along its ray far beyond
+the covariance); when fewer than `min_tracked_keypoints` are accepted, the detector runs and
+its corners are fused the same way, or, with no accepted keypoint for `reinit_after`, or when the filter rejects most keypoints of the detection (a track kept alive by
 wrong associations), the filter is re-initialized from the detection (L Sec. 5.2.2: initialization
 from a full detection; a re-initialization keeps the velocity the filter knew, `reinit_*`).
 Frames of the `geometric` source carry keypoint candidates instead of an image
@@ -62,11 +61,10 @@ class TargetEstimatorParams:
     reinit_after: float = bounded(0.5, 0.0, 60.0, "s")
     # keypoints are tracked from the filter's prediction first once it knows the target's
     # horizontal velocity within this; until then the detector runs first, the tracker only
-    # when it finds nothing (a filter just
-    # initialized at zero velocity, 5 m/s std, over a car at 6 m/s from Follow's 4.2 m: the
-    # pattern moves 37 px between frames, the nearest candidates within the tracker's 30 px
-    # reach were other keypoints, and the wrong ones accepted re-initialized the filter at
-    # zero velocity frame after frame)
+    # when it finds nothing (a filter just initialized at zero velocity, 5 m/s std, over a car
+    # at 6 m/s from Follow's 4.2 m: the pattern moves 37 px between frames, the nearest
+    # candidates within the tracker's 30 px reach were other keypoints, and the wrong ones
+    # accepted re-initialized the filter at zero velocity frame after frame)
     track_velocity_std: float = bounded(1.0, 0.0, 100.0, "m/s")
     # a re-initialization of a valid filter whose horizontal velocity std is under this keeps
     # its velocity (and acceleration), with the velocity std `reinit_velocity_std` (beyond the
