@@ -10,9 +10,10 @@ predicted closer to the camera than `min_keypoint_depth`, where the projection's
 fails: after touchdown the camera sits 14 cm above the pattern and sees its centre keypoint
 alone, and that bearing, fused frame after frame, dragged the estimate along its ray far beyond
 the covariance); when fewer than `min_tracked_keypoints` are accepted, the detector runs and
-its corners are fused the same way, or, with no accepted keypoint for `reinit_after`, or when the filter rejects most keypoints of the detection (a track kept alive by
-wrong associations), the filter is re-initialized from the detection (L Sec. 5.2.2: initialization
-from a full detection; a re-initialization keeps the velocity the filter knew, `reinit_*`).
+its corners are fused the same way, or, with no accepted keypoint for `reinit_after`, or when
+the filter rejects most keypoints of the detection (a track kept alive by wrong associations),
+the filter is re-initialized from the detection (L Sec. 5.2.2: initialization from a full
+detection; a re-initialization keeps the velocity the filter knew, `reinit_*`).
 Frames of the `geometric` source carry keypoint candidates instead of an image
 (down_camera.GeometricDownCamera, a sensor model of the front end): unlabelled, with false ones and
 outliers; their detection is a search for the pattern's white square among them (convex quads of
