@@ -380,6 +380,9 @@ def mavlink_mission(connect: str, frame_address: str | None = None,
             sender.wait_idle()
             answer = link.safe_stop()
             return answer
+        except Exception as e:   # recorded as run_realtime records it, then raised
+            answer = f"FAILED: {e}"
+            raise
         finally:
             _close(link, frames)
             # How the onboard side kept real time (run folder `metadata.json` "realtime"):
