@@ -32,15 +32,16 @@ def test_touchdown_time_and_the_predicted_horizontal_sigma():
 
 class Uncertain(Scripted):
     """The scripted estimates with the target's velocity variance set to `var_v` from `start` on
-    (an EKF that lost its confidence, e.g. wrong associations)."""
+    until `end` (an EKF that lost its confidence, e.g. wrong associations, or was
+    re-initialized)."""
 
-    def __init__(self, target, start: float, var_v: float):
-        self._start, self._var_v = start, var_v
+    def __init__(self, target, start: float, var_v: float, end: float = np.inf):
+        self._start, self._var_v, self._end = start, var_v, end
         super().__init__(target)
 
     def _target_estimate(self, context, output):
         super()._target_estimate(context, output)
-        if context.get_time() >= self._start:
+        if self._start <= context.get_time() < self._end:
             output.get_mutable_value()[TARGET_ESTIMATE.slice("var_v")] = self._var_v
 
 
@@ -48,15 +49,16 @@ def test_landing_predicted_to_miss_aborts_before_phase_2_and_climbs_back():
     target = moving_target(2.0, appear=17.0)
     nominal = transitions(fly(target, 40.0))
     p2 = [t for t, m, _ in nominal if m == Mode.LANDING_P2][0]
-    # sigma_v 0.5 m/s from 0.3 s before the boundary: 3 sigma over the blind 0.36 s is 0.78 m.
-    logs = fly(target, 40.0, script=Uncertain(target, p2 - 0.3, 0.25))
+    # sigma_v 0.5 m/s from 0.6 s before the boundary: 3 sigma over the blind 0.36 s is 0.78 m;
+    # it has lasted `uncertain_abort_time` (0.3 s) 0.3 s before the boundary.
+    logs = fly(target, 40.0, script=Uncertain(target, p2 - 0.6, 0.25))
     events = transitions(logs)
     modes = [m for _, m, _ in events]
     assert modes[:4] == [Mode.TAKING_OFF, Mode.WAYPOINT, Mode.FOLLOW, Mode.LANDING_P1]
     assert Mode.LANDING_P2 not in modes and Mode.WAYPOINT not in modes[2:]
     abort_t, abort_mode, reason = events[4]
     assert abort_mode == Mode.FOLLOW and reason == Reason.PREDICTED_MISS
-    assert p2 - 0.3 <= abort_t <= p2 - 0.3 + 0.1            # the next tick, logged a tick later
+    assert p2 - 0.3 <= abort_t <= p2 - 0.3 + 0.1            # 0.3 s on, logged a tick later
     t, status = logs["mission_status"]
     miss = status[:, MISSION_STATUS.slice("predicted_miss")].ravel()
     assert miss[np.searchsorted(t, abort_t)] > 0.6          # over miss_limit
@@ -66,6 +68,24 @@ def test_landing_predicted_to_miss_aborts_before_phase_2_and_climbs_back():
     climbing = (t_ref > abort_t + 0.2) & (z < 5.2 - 0.1)
     assert np.diff(z)[climbing[1:]].mean() / 0.05 == pytest.approx(1.3, rel=0.05)
     assert z[-1] == pytest.approx(5.2, abs=1e-9)
+
+
+def test_a_short_uncertainty_in_phase_1_does_not_abort_the_landing():
+    """A re-initialized target EKF (velocity std 0.5 m/s) for 0.15 s in Landing Phase 1: the
+    predicted miss passes `miss_limit` for three ticks, shorter than `uncertain_abort_time`;
+    the landing goes on as without it (every re-acquisition at 5-6 m/s aborted a descent)."""
+    target = moving_target(2.0, appear=17.0)
+    nominal = transitions(fly(target, 40.0))
+    p1 = [t for t, m, _ in nominal if m == Mode.LANDING_P1][0]
+    logs = fly(target, 40.0, script=Uncertain(target, p1 + 0.5, 0.25, end=p1 + 0.65))
+    t, status = logs["mission_status"]
+    miss = status[:, MISSION_STATUS.slice("predicted_miss")].ravel()
+    assert (miss[(t > p1 + 0.5) & (t < p1 + 0.75)] > 0.6).sum() >= 2
+    assert [(m, r) for _, m, r in transitions(logs)] == [(m, r) for _, m, r in nominal]
+    params = LandingMissionParams(uncertain_abort_time=0.0)   # the abort at the first tick
+    aborted = transitions(fly(target, 40.0, params=params,
+                              script=Uncertain(target, p1 + 0.5, 0.25, end=p1 + 0.65)))
+    assert Reason.PREDICTED_MISS in [r for _, _, r in aborted]
 
 
 @pytest.mark.mission

@@ -32,8 +32,10 @@ velocity noise density; the position-velocity cross-covariance is not in the est
   Back at the waypoint's height with the horizontal position and velocity errors under
   `position_threshold`, `velocity_threshold` and k sigma_xy(t_go) under `miss_limit`: Phase 1.
 - Landing Phase 1: as Follow, descending at `descending_p1`; target lost: Follow (climbing back,
-  pursuing);
-  k sigma_xy(t_go) over `miss_limit`: Follow (abort). Height above the target under
+  pursuing); k sigma_xy(t_go) over `miss_limit` for `uncertain_abort_time`: Follow (abort; a
+  re-initialized target EKF is that uncertain for a tick or two, 0.5 m/s velocity std, and
+  every re-acquisition at 5-6 m/s aborted a descent whose predicted miss was 0.2-0.4 m a tick
+  before). Height above the target under
   `landing_p2_offset`: Landing Phase 2 if the predicted miss is under `miss_limit`, else Follow.
 - Landing Phase 2: descending at `descending_p2`; no timeout (the paper's cannot be cancelled;
   here only a miss the rangefinder sees, below). Height above the target under `landed_offset`:
@@ -131,6 +133,9 @@ class LandingMissionParams:
     # than this is the ground beside the car (the platform stands 1 m above it): go around
     # then, not only at the landed height (0: only there)
     range_miss_margin: float = bounded(0.5, 0.0, 50.0, "m")
+    # Landing Phase 1 aborts on the target's uncertainty only once it has lasted this long (the
+    # Phase 2 gate judges the predicted miss at once); 0: at the first uncertain tick
+    uncertain_abort_time: float = bounded(0.3, 0.0, 10.0, "s")
     range_timeout: float = bounded(0.2, 0.0, 5.0, "s")           # an older range is not used
 
 
@@ -196,7 +201,7 @@ MISSION_STATUS = VectorLayout("mission_status", [
 # the start position.
 _STATE = VectorLayout("landing_mission_state", [
     *MISSION_STATUS.fields, ("p_ref", 3), ("v_ref", 3), ("a_ref", 3), ("p_filtered", 3),
-    ("v_filtered", 3), ("a_filtered", 3), ("start", 3)])
+    ("v_filtered", 3), ("a_filtered", 3), ("start", 3), ("uncertain_since", 1)])
 
 
 class LandingMission(LeafSystem):
@@ -215,7 +220,7 @@ class LandingMission(LeafSystem):
         initial = np.zeros(_STATE.size)
         initial[_STATE.slice("first_detection")] = np.nan
         initial[_STATE.slice("last_detection")] = np.nan
-        for name in ("e_xy", "sigma_xy", "predicted_miss"):
+        for name in ("e_xy", "sigma_xy", "predicted_miss", "uncertain_since"):
             initial[_STATE.slice(name)] = np.nan
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
@@ -326,6 +331,12 @@ class LandingMission(LeafSystem):
         x[_STATE.slice("sigma_xy")] = horizontal_sigma(target, 0.0, 0.0) if tracked else np.nan
         x[_STATE.slice("predicted_miss")] = e_xy + p.sigma_k * sigma_go
         certain = bool(p.sigma_k * sigma_go <= p.miss_limit)   # False when not tracked (nan)
+        if certain:
+            x[_STATE.slice("uncertain_since")] = np.nan
+        elif np.isnan(_STATE.get(x, "uncertain_since")):
+            x[_STATE.slice("uncertain_since")] = now
+        long_uncertain = not certain and \
+            now - _STATE.get(x, "uncertain_since") >= p.uncertain_abort_time - 1e-9
         mode = Mode(int(_STATE.get(x, "mode")))
         reference_before = _STATE.get(x, "p_ref").copy(), _STATE.get(x, "v_ref").copy()
 
@@ -449,7 +460,8 @@ class LandingMission(LeafSystem):
             else:
                 follow_target(p.descending_p1)
                 miss = _STATE.get(x, "predicted_miss")
-                if not certain or (height <= p.landing_p2_offset and not miss <= p.miss_limit):
+                if long_uncertain or (height <= p.landing_p2_offset
+                                      and not miss <= p.miss_limit):
                     go(Mode.FOLLOW, Reason.PREDICTED_MISS)   # abort before Phase 2 commits
                 elif height <= p.landing_p2_offset:
                     go(Mode.LANDING_P2, Reason.BELOW_P2_OFFSET)
