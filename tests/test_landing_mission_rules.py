@@ -73,7 +73,7 @@ def test_landing_predicted_to_miss_aborts_before_phase_2_and_climbs_back():
 def test_a_short_uncertainty_in_phase_1_does_not_abort_the_landing():
     """A re-initialized target EKF (velocity std 0.5 m/s) for 0.15 s in Landing Phase 1: the
     predicted miss passes `miss_limit` for three ticks, shorter than `uncertain_abort_time`;
-    the landing goes on as without it (every re-acquisition at 5-6 m/s aborted a descent)."""
+    the landing goes on as without it (at 5-6 m/s such spikes aborted descents)."""
     target = moving_target(2.0, appear=17.0)
     nominal = transitions(fly(target, 40.0))
     p1 = [t for t, m, _ in nominal if m == Mode.LANDING_P1][0]

@@ -33,10 +33,10 @@ velocity noise density; the position-velocity cross-covariance is not in the est
   `position_threshold`, `velocity_threshold` and k sigma_xy(t_go) under `miss_limit`: Phase 1.
 - Landing Phase 1: as Follow, descending at `descending_p1`; target lost: Follow (climbing back,
   pursuing); k sigma_xy(t_go) over `miss_limit` for `uncertain_abort_time`: Follow (abort; a
-  re-initialized target EKF is that uncertain for a tick or two, 0.5 m/s velocity std, and
-  every re-acquisition at 5-6 m/s aborted a descent whose predicted miss was 0.2-0.4 m a tick
-  before). Height above the target under
-  `landing_p2_offset`: Landing Phase 2 if the predicted miss is under `miss_limit`, else Follow.
+  re-initialized target EKF is that uncertain for a tick or two, 0.5 m/s velocity std, and at
+  5-6 m/s most of 40 aborts came with a predicted miss of 0.2-0.4 m a tick before). Height
+  above the target under `landing_p2_offset`: Landing Phase 2 if the predicted miss is under
+  `miss_limit`, else Follow.
 - Landing Phase 2: descending at `descending_p2`; no timeout (the paper's cannot be cancelled;
   here only a miss the rangefinder sees, below). Height above the target under `landed_offset`:
   Landed (confirmed by the rangefinder).
