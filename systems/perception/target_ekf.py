@@ -78,6 +78,11 @@ class TargetEkf:
     def initialized(self) -> bool:
         return np.isfinite(self.t)
 
+    @property
+    def horizontal_velocity_std(self) -> float:
+        """The larger of the x and y velocity standard deviations [m/s]."""
+        return float(np.sqrt(np.max(np.diag(self.P)[6:8])))
+
     def initialize(self, t: float, p_WT: np.ndarray, q_WT: np.ndarray, range_m: float,
                    motion: tuple[np.ndarray, np.ndarray, float] | None = None) -> None:
         """From a full detection at time t: velocity zero (L Sec. 5.2.2), or `motion` (v, a and

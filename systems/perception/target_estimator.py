@@ -289,7 +289,7 @@ class TargetEstimator(LeafSystem):
     def _trackable(self, ekf: TargetEkf) -> bool:
         """The filter knows the target's horizontal velocity within `track_velocity_std`: its
         prediction can guide the tracker's search windows."""
-        return bool(np.sqrt(np.max(np.diag(ekf.P)[6:8])) <= self._params.track_velocity_std)
+        return ekf.horizontal_velocity_std <= self._params.track_velocity_std
 
     def _kept_motion(self, st: EstimatorState) -> tuple[np.ndarray, np.ndarray, float] | None:
         """The motion a re-initialization keeps (v, a, velocity std; `reinit_keep_velocity_std`),
@@ -297,7 +297,7 @@ class TargetEstimator(LeafSystem):
         or one whose velocity is not known)."""
         p, ekf = self._params, st.ekf
         if not st.valid or not ekf.initialized or \
-                np.sqrt(np.max(np.diag(ekf.P)[6:8])) > p.reinit_keep_velocity_std:
+                ekf.horizontal_velocity_std > p.reinit_keep_velocity_std:
             return None
         return ekf.v, ekf.a, p.reinit_velocity_std
 
