@@ -347,6 +347,87 @@ def test_the_mission_s_reference_carries_a_turning_car_s_acceleration():
     assert acceleration[2] == 0.0
 
 
+class PeriodicReader(LeafSystem):
+    """A controller's view of the reference: read at its own ticks (`period`, with the
+    mission's) and moved along its velocity from its stamp to the tick, as the MPC does
+    (LinearMpcParams.max_prediction); `rows` collects (tick, reference position now)."""
+
+    def __init__(self, period: float):
+        super().__init__()
+        self._reference = self.DeclareVectorInputPort("reference", REFERENCE.size)
+        self.rows = []
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._read)
+
+    def _read(self, context):
+        reference, t = self._reference.Eval(context), context.get_time()
+        age = t - REFERENCE.get(reference, "stamp")
+        self.rows.append((t, age, REFERENCE.get(reference, "p") + REFERENCE.get(reference, "v")
+                          * age))
+
+
+def test_a_controller_ticking_with_the_mission_sees_the_reference_on_the_moving_target():
+    """Drake updates the mission and a controller of the same period together, so the
+    controller reads the reference of the mission's previous tick: stamped with that tick, moved
+    one period along its velocity it is on the 5 m/s target within 1 mm in Follow (the low pass
+    at 30 Hz: a lag of v T (1 - a) / a = 0.02 mm; stamped with the reading time, 25 cm behind)."""
+    params = LandingMissionParams(t_prediction=0.0)
+    target = moving_target(5.0, appear=17.0)
+    builder = DiagramBuilder()
+    mission = builder.AddSystem(LandingMission(params))
+    script = builder.AddSystem(Scripted(target, HOVER))
+    reader = builder.AddSystem(PeriodicReader(params.period))
+    builder.Connect(mission.GetOutputPort("reference"), script.GetInputPort("reference"))
+    builder.Connect(mission.GetOutputPort("reference"), reader.GetInputPort("reference"))
+    builder.Connect(script.GetOutputPort("state_estimate"), mission.GetInputPort("state_estimate"))
+    builder.Connect(script.GetOutputPort("target_estimate"),
+                    mission.GetInputPort("target_estimate"))
+    Simulator(builder.Build()).AdvanceTo(19.0)
+    following = [(t, age, p) for t, age, p in reader.rows if 17.5 <= t]
+    assert following
+    for t, age, p in following:
+        assert age == pytest.approx(params.period, abs=1e-9)
+        np.testing.assert_allclose(p[:2], target(t)[0][:2], atol=1e-3)
+
+
+class TiltedScripted(Scripted):
+    """Scripted (the ideal vehicle) rolled by `roll` [rad]: its thrust holds g tan(roll)
+    sideways, as against the air over a moving car."""
+
+    def __init__(self, target, roll: float):
+        super().__init__(target)
+        self._q = [np.cos(roll / 2), np.sin(roll / 2), 0.0, 0.0]
+
+    def _estimate(self, context, output):
+        super()._estimate(context, output)
+        output.get_mutable_value()[STATE_ESTIMATE.slice("q_EB")] = self._q
+
+
+def test_the_descending_reference_leads_the_target_by_the_level_touchdown_s_drift():
+    """Rolled -10 deg (g tan 10 deg = 1.73 m/s^2 along the car's +y), the ideal vehicle's
+    reference is on the 2 m/s car in Follow and, in Landing Phase 2 below `level_lead_height`,
+    a_tilt t^2 / 2 = 21.6 cm ahead of it (t = `level_lead_time`, 0.5 s), half that halfway down
+    the ramp from `landing_p2_offset`."""
+    params = LandingMissionParams(t_prediction=0.0, level_lead_time=0.5)
+    target = moving_target(2.0, appear=17.0)
+    logs = fly(target, 40.0, params=params, script=TiltedScripted(target, np.radians(-10.0)))
+    t, reference = logs["reference"]
+    _, status = logs["mission_status"]
+    mode = status[:, 0].astype(int)
+    stamp = reference[:, REFERENCE.slice("stamp")].ravel()
+    p_ref = reference[:, REFERENCE.slice("p")]
+    ahead = p_ref[:, 1] - 2.0 * (stamp - 20.0)              # of the car at the stamp
+    height = p_ref[:, 2] - PLATFORM_Z
+    lead = 0.5 * 9.81 * np.tan(np.radians(10.0)) * 0.5 ** 2
+    following = mode == Mode.FOLLOW
+    assert following.any() and np.all(np.abs(ahead[following]) < 1e-3)
+    low = (mode == Mode.LANDING_P2) & (height < params.level_lead_height - 0.1)
+    assert low.any()
+    np.testing.assert_allclose(ahead[low], lead, atol=2e-3)
+    halfway = (params.landing_p2_offset + params.level_lead_height) / 2
+    middle = np.argmin(np.abs(height - halfway) + 10.0 * (mode != Mode.LANDING_P2))
+    assert ahead[middle] == pytest.approx(lead / 2, abs=0.02)
+
+
 def test_nan_target_estimate_is_not_a_detection():
     nan_target = lambda t: (np.full(3, np.nan), np.zeros(3)) if t > 17.0 else None
     events = transitions(fly(nan_target, 22.0))

@@ -56,7 +56,8 @@ def reason(b) -> TargetReason:
 def test_follows_a_constant_velocity_target_with_the_l_6_3_lag():
     """L Fig. 8: the target predicted by t_prediction, then the first-order low pass
     y_k = y_k-1 + a (u_k - y_k-1): a ramp u_k lags by v T (1 - a) / a, so the reference leads
-    the target by v (t_pred - T (1 - a) / a)."""
+    the target by v (t_pred - T (1 - a) / a) at the reference's stamp, one period after the
+    tick (the target of the tick itself trailed a 5 m/s car by 5 cm)."""
     p0 = np.array([3.0, -2.0, 1.0])
     b = bench(TargetGoal.follow(), p0, V_T)
     rows = b.run(6.0, each=moving_target(p0, V_T))
@@ -64,7 +65,8 @@ def test_follows_a_constant_velocity_target_with_the_l_6_3_lag():
     a = low_pass_gain(PARAMS.cutoff_position, PERIOD)
     lead = V_T * (PARAMS.t_prediction - PERIOD * (1 - a) / a)   # 0.198 m at 2 m/s
     p_ref = REFERENCE.get(rows[-1], "p")
-    np.testing.assert_allclose(p_ref[:2], (p0 + V_T * t_last + lead)[:2], atol=1e-3)
+    p_stamp = p0 + V_T * (t_last + PERIOD)                  # the target at the stamp
+    np.testing.assert_allclose(p_ref[:2], (p_stamp + lead)[:2], atol=1e-3)
     np.testing.assert_allclose(REFERENCE.get(rows[-1], "v")[:2], V_T[:2], atol=1e-3)
     assert p_ref[2] == pytest.approx(HEIGHT)                 # Follow holds the height
     assert REFERENCE.get(rows[-1], "stamp") == pytest.approx(t_last + PERIOD)

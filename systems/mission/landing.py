@@ -40,6 +40,12 @@ velocity noise density; the position-velocity cross-covariance is not in the est
 - Landing Phase 2: descending at `descending_p2`; no timeout (the paper's cannot be cancelled;
   here only a miss the rangefinder sees, below). Height above the target under `landed_offset`:
   Landed (confirmed by the rangefinder).
+  In both landing phases the horizontal reference leads the target by a_tilt t^2 / 2
+  (`level_lead_time`, ramped in from `landing_p2_offset` down to `level_lead_height`), a_tilt
+  the horizontal acceleration the vehicle's attitude holds (low-passed): levelled for the last
+  metre (alight.systems.control.touchdown_level) the vehicle loses it and drifts back with the
+  air by about that much (reference_generator.level_lead; docs/landing.md "Level touchdown
+  lead").
 - Landed: disarm.
 
 Beyond the paper (its field tests end the flight by hand; a vehicle must not hover at the waypoint
@@ -77,7 +83,9 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (RANGE, REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE,
                                      VectorLayout)
-from alight.systems.mission.reference_generator import filter_acceleration, filter_reference
+from alight.systems.mission.reference_generator import (filter_acceleration, filter_reference,
+                                                      level_lead, low_pass_gain,
+                                                      tilt_acceleration)
 from alight.systems.params import bounded
 
 
@@ -137,6 +145,14 @@ class LandingMissionParams:
     # Phase 2 gate judges the predicted miss at once); 0: at the first uncertain tick
     uncertain_abort_time: float = bounded(0.3, 0.0, 10.0, "s")
     range_timeout: float = bounded(0.2, 0.0, 5.0, "s")           # an older range is not used
+    # The level touchdown's drift led (module text): in the landing phases the horizontal
+    # reference leads the target by a_tilt t^2 / 2, a_tilt the horizontal acceleration the
+    # vehicle's tilt holds (low-passed at `tilt_cutoff`), t this time (0: no lead) ...
+    level_lead_time: float = bounded(0.5, 0.0, 5.0, "s")
+    # ... ramped in from `landing_p2_offset` to this height above the target (the
+    # TouchdownLevelParams height, where the attitude command goes level)
+    level_lead_height: float = bounded(1.0, 0.0, 50.0, "m")
+    tilt_cutoff: float = bounded(1.0, 0.01, 100.0, "Hz")
 
 
 def horizontal_sigma(target: np.ndarray, t_ahead: float, velocity_noise: float) -> float:
@@ -197,10 +213,12 @@ MISSION_STATUS = VectorLayout("mission_status", [
     ("first_detection", 1), ("last_detection", 1), ("e_xy", 1), ("sigma_xy", 1),
     ("predicted_miss", 1)])
 
-# Discrete state: the status fields above, then the reference, the filtered target reference and
+# Discrete state: the status fields above, then the reference (with the time of the tick that
+# computed it), the filtered target reference, the tilt's low-passed horizontal acceleration and
 # the start position.
 _STATE = VectorLayout("landing_mission_state", [
-    *MISSION_STATUS.fields, ("p_ref", 3), ("v_ref", 3), ("a_ref", 3), ("p_filtered", 3),
+    *MISSION_STATUS.fields, ("ref_stamp", 1), ("p_ref", 3), ("v_ref", 3), ("a_ref", 3),
+    ("p_filtered", 3), ("a_tilt", 3),
     ("v_filtered", 3), ("a_filtered", 3), ("start", 3), ("uncertain_since", 1)])
 
 
@@ -240,9 +258,13 @@ class LandingMission(LeafSystem):
         return Mode(int(_STATE.get(self._x(context), "mode")))
 
     def _calc_reference(self, context, output):
+        """The reference of the last tick, stamped with that tick's time: a controller ticking
+        with the mission reads it one period later (Drake's simultaneous discrete updates) and
+        moves it along its velocity from the stamp (stamped with the reading time instead, the
+        reference trailed a 4.5 m/s car by 22 cm, docs/landing.md)."""
         x = self._x(context)
         output.SetFromVector(REFERENCE.pack(
-            stamp=context.get_time(), p=_STATE.get(x, "p_ref"), v=_STATE.get(x, "v_ref"),
+            stamp=_STATE.get(x, "ref_stamp"), p=_STATE.get(x, "p_ref"), v=_STATE.get(x, "v_ref"),
             a=_STATE.get(x, "a_ref"), j=np.zeros(3), heading=np.radians(self._p.heading),
             heading_rate=0.0))
 
@@ -338,6 +360,10 @@ class LandingMission(LeafSystem):
         long_uncertain = not certain and \
             now - _STATE.get(x, "uncertain_since") >= p.uncertain_abort_time - 1e-9
         mode = Mode(int(_STATE.get(x, "mode")))
+        if estimate_ok:
+            a_tilt = _STATE.get(x, "a_tilt")
+            x[_STATE.slice("a_tilt")] = a_tilt + low_pass_gain(p.tilt_cutoff, p.period) * (
+                tilt_acceleration(STATE_ESTIMATE.get(estimate, "q_EB")) - a_tilt)
         reference_before = _STATE.get(x, "p_ref").copy(), _STATE.get(x, "v_ref").copy()
 
         def go(new_mode: Mode, reason: Reason):
@@ -349,6 +375,7 @@ class LandingMission(LeafSystem):
             x[_STATE.slice("transitions")] += 1
 
         def set_reference(position, velocity, acceleration=(0.0, 0.0, 0.0)):
+            x[_STATE.slice("ref_stamp")] = now
             x[_STATE.slice("p_ref")] = position
             x[_STATE.slice("v_ref")] = velocity
             x[_STATE.slice("a_ref")] = acceleration
@@ -370,6 +397,9 @@ class LandingMission(LeafSystem):
                                       p.period) if velocity_settled else np.zeros(3)
             x[_STATE.slice("p_filtered")], x[_STATE.slice("v_filtered")] = p_f, v_f
             x[_STATE.slice("a_filtered")] = a_f
+            if descent_rate > 0.0:
+                p_f = p_f + level_lead(_STATE.get(x, "a_tilt"), p.level_lead_time, height,
+                                       p.landing_p2_offset, p.level_lead_height)
             z_ref, ceiling = _STATE.get(x, "p_ref")[2], p.waypoint[2]
             if descent_rate > 0.0 or z_ref >= ceiling:
                 z = max(z_ref - descent_rate * p.period, p_T[2] - 0.5)  # not through the plate

@@ -8,8 +8,17 @@ filtered velocity, is fed to the reference. The paper's reference moves on at co
 over the MPC's horizon (L Sec. 6.3); on the MBZIRC figure eight (10 m turn radius at 4.2 m/s, a
 1.7 m/s^2 centripetal acceleration) that straight extrapolation put every touchdown 32-41 cm
 outside the curve (docs/benchmarks.md, issue 23).
+
+Also beyond the paper: the lead for the level touchdown (alight.systems.control.touchdown_level).
+Levelled for its last decimetres, the vehicle loses the horizontal acceleration its tilt held
+against the air flowing over the moving car and drifts back by about a t^2 / 2 before the legs
+touch (12 cm median at 5 m/s in 15 km/h wind, docs/landing.md "Level touchdown lead"); the
+descending reference leads the target by that much, so the drift ends on the platform's centre.
 """
 import numpy as np
+
+from alight.systems.control.linear_model import GRAVITY
+from alight.systems.rotations import rotation_matrix
 
 
 def predict_target(p_WT: np.ndarray, v_WT: np.ndarray, t_prediction: float) -> np.ndarray:
@@ -45,3 +54,21 @@ def filter_acceleration(previous_a, previous_v, v, cutoff: float, max_accelerati
     a = np.asarray(previous_a, float) + low_pass_gain(cutoff, period) * (rate - previous_a)
     size = float(np.linalg.norm(a))
     return a * (max_acceleration / size) if size > max_acceleration else a
+
+
+def tilt_acceleration(q_EB) -> np.ndarray:
+    """Horizontal acceleration [m/s^2] (z zero) the thrust holds at the attitude q_EB at hover
+    thrust, g tan(tilt) toward the tilt; zero when tilted past 60 deg or not a rotation."""
+    z_B = rotation_matrix(np.asarray(q_EB, float))[:, 2]
+    if not np.all(np.isfinite(z_B)) or z_B[2] < 0.5:
+        return np.zeros(3)
+    return np.array([GRAVITY * z_B[0] / z_B[2], GRAVITY * z_B[1] / z_B[2], 0.0])
+
+
+def level_lead(a_tilt, lead_time: float, height: float, ramp_start: float,
+               ramp_end: float) -> np.ndarray:
+    """Lead [m] of the descending reference for the level touchdown: a_tilt lead_time^2 / 2,
+    ramped in linearly as `height` goes from `ramp_start` down to `ramp_end` (full below)."""
+    span = ramp_start - ramp_end
+    share = 1.0 if span <= 0.0 else float(np.clip((ramp_start - height) / span, 0.0, 1.0))
+    return 0.5 * share * lead_time ** 2 * np.asarray(a_tilt, float)

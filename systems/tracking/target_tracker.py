@@ -175,7 +175,10 @@ class TargetTracker(ChiTracker):
         EKF's velocity settles after a detection."""
         params, chi, dt = self.params, memory.chi, self.period
         p, v = REFERENCE.get(chi, "p")[:2], REFERENCE.get(chi, "v")[:2]
-        offset = p + v * dt - memory.p_filtered[:2] - memory.goal.offset
+        # chi one period on against the filtered target one period on (the reference is stamped
+        # there; against the target now it trailed a 5 m/s car by 5 cm)
+        ahead = memory.p_filtered[:2] + memory.v_filtered[:2] * dt
+        offset = p + v * dt - ahead - memory.goal.offset
         rate = -clip_norm(offset / params.catch_up_time, params.catch_up_speed)
         acceleration = clip_norm((rate - (v - memory.v_filtered[:2])) /
                                  (params.catch_up_time / 4.0), params.catch_up_acceleration)
