@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from alight.diagrams.onboard.control_manager import load_control_manager_config
-from alight.systems.boundary import REFERENCE, TARGET_ESTIMATE, TRACKER_STATUS
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE, TRACKER_STATUS
 from alight.systems.mission.reference_generator import low_pass_gain
 from alight.systems.params import ConfigError, load_params
 from alight.systems.rotations import heading_quaternion
@@ -209,3 +209,20 @@ def test_offset_goal_follows_beside_the_target_without_a_jump_at_the_change():
         PARAMS.catch_up_speed * PERIOD + 1e-9
     np.testing.assert_allclose(REFERENCE.get(rows[-1], "p")[:2], p_T[:2] + [0.0, 1.5],
                                atol=1e-3)
+
+
+@pytest.mark.parametrize("goal, lead", [(TargetGoal.descend(1.8), True),
+                                        (TargetGoal.follow(), False)])
+def test_a_descent_onto_the_platform_leads_the_target_by_the_level_touchdown_s_drift(goal, lead):
+    """Rolled -10 deg (its thrust holds g tan 10 deg = 1.73 m/s^2 along +y, as against the air
+    over a moving car) 0.5 m above the platform, under `level_lead_height`: descending onto it,
+    the reference settles a_tilt t^2 / 2 = 21.6 cm ahead (t = `level_lead_time` 0.5 s); following,
+    on it."""
+    p_T = np.array([0.0, 0.0, 1.0])
+    b = bench(goal, p_T, start=(0.0, 0.0, 1.5))
+    roll = np.radians(-10.0)
+    b.set("state_estimate", STATE_ESTIMATE.vector(
+        p_EB=[0.0, 0.0, 1.5], q_EB=[np.cos(roll / 2), np.sin(roll / 2), 0.0, 0.0]))
+    rows = b.run(4.0)
+    expected = 0.5 * 9.81 * np.tan(-roll) * PARAMS.level_lead_time ** 2 if lead else 0.0
+    np.testing.assert_allclose(REFERENCE.get(rows[-1], "p")[:2], [0.0, expected], atol=2e-3)

@@ -8,7 +8,8 @@ on the upwind legs: their off-centre impulse spins the light airframe (I_xx 0.04
 0.21 m out) through level and, disarmed, it tips over (docs/landing.md "Touchdown attitude").
 Levelled for the last `height` above the platform (a few tenths of a second at 1.8 m/s, the
 attitude loop's response), the four legs meet the platform together; the drift that the wind
-adds meanwhile (drag / mass ~2 m/s^2) is a few centimetres.
+adds meanwhile (drag / mass ~2 m/s^2) is a few centimetres at 3 m/s, 13 cm at 5 m/s, which the
+landing mission's descending reference leads (reference_generator.level_lead).
 """
 import dataclasses as dc
 

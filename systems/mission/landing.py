@@ -40,9 +40,10 @@ velocity noise density; the position-velocity cross-covariance is not in the est
 - Landing Phase 2: descending at `descending_p2`; no timeout (the paper's cannot be cancelled;
   here only a miss the rangefinder sees, below). Height above the target under `landed_offset`:
   Landed (confirmed by the rangefinder).
-  In both landing phases the horizontal reference leads the target by a_tilt t^2 / 2
-  (`level_lead_time`, ramped in from `landing_p2_offset` down to `level_lead_height`), a_tilt
-  the horizontal acceleration the vehicle's attitude holds (low-passed): levelled for the last
+  In both landing phases the horizontal reference leads the target by a_held t^2 / 2
+  (`level_lead_time`, ramped in from `landing_p2_offset` down to `level_lead_height`, at most
+  `max_level_lead`), a_held the horizontal acceleration the vehicle's tilt holds against the
+  air (g tan(tilt) less its own acceleration, low-passed): levelled for the last
   metre (alight.systems.control.touchdown_level) the vehicle loses it and drifts back with the
   air by about that much (reference_generator.level_lead; docs/landing.md "Level touchdown
   lead").
@@ -85,7 +86,7 @@ from alight.systems.boundary import (RANGE, REFERENCE, STATE_ESTIMATE, TARGET_ES
                                      VectorLayout)
 from alight.systems.mission.reference_generator import (filter_acceleration, filter_reference,
                                                       level_lead, low_pass_gain,
-                                                      tilt_acceleration)
+                                                      held_acceleration)
 from alight.systems.params import bounded
 
 
@@ -146,12 +147,14 @@ class LandingMissionParams:
     uncertain_abort_time: float = bounded(0.3, 0.0, 10.0, "s")
     range_timeout: float = bounded(0.2, 0.0, 5.0, "s")           # an older range is not used
     # The level touchdown's drift led (module text): in the landing phases the horizontal
-    # reference leads the target by a_tilt t^2 / 2, a_tilt the horizontal acceleration the
-    # vehicle's tilt holds (low-passed at `tilt_cutoff`), t this time (0: no lead) ...
+    # reference leads the target by a_held t^2 / 2, a_held the horizontal acceleration the
+    # vehicle's tilt holds against the air (low-passed at `tilt_cutoff`), t this time (0: no
+    # lead) ...
     level_lead_time: float = bounded(0.5, 0.0, 5.0, "s")
     # ... ramped in from `landing_p2_offset` to this height above the target (the
-    # TouchdownLevelParams height, where the attitude command goes level)
+    # TouchdownLevelParams height, where the attitude command goes level), at most this long
     level_lead_height: float = bounded(1.0, 0.0, 50.0, "m")
+    max_level_lead: float = bounded(0.4, 0.0, 5.0, "m")
     tilt_cutoff: float = bounded(1.0, 0.01, 100.0, "Hz")
 
 
@@ -214,11 +217,11 @@ MISSION_STATUS = VectorLayout("mission_status", [
     ("predicted_miss", 1)])
 
 # Discrete state: the status fields above, then the reference (with the time of the tick that
-# computed it), the filtered target reference, the tilt's low-passed horizontal acceleration and
-# the start position.
+# computed it), the filtered target reference, the low-passed acceleration the tilt holds, the
+# last estimated velocity (its rate, nan before) and the start position.
 _STATE = VectorLayout("landing_mission_state", [
     *MISSION_STATUS.fields, ("ref_stamp", 1), ("p_ref", 3), ("v_ref", 3), ("a_ref", 3),
-    ("p_filtered", 3), ("a_tilt", 3),
+    ("p_filtered", 3), ("a_held", 3), ("v_estimate", 3),
     ("v_filtered", 3), ("a_filtered", 3), ("start", 3), ("uncertain_since", 1)])
 
 
@@ -238,7 +241,7 @@ class LandingMission(LeafSystem):
         initial = np.zeros(_STATE.size)
         initial[_STATE.slice("first_detection")] = np.nan
         initial[_STATE.slice("last_detection")] = np.nan
-        for name in ("e_xy", "sigma_xy", "predicted_miss", "uncertain_since"):
+        for name in ("e_xy", "sigma_xy", "predicted_miss", "uncertain_since", "v_estimate"):
             initial[_STATE.slice(name)] = np.nan
         self._xd = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
@@ -361,9 +364,11 @@ class LandingMission(LeafSystem):
             now - _STATE.get(x, "uncertain_since") >= p.uncertain_abort_time - 1e-9
         mode = Mode(int(_STATE.get(x, "mode")))
         if estimate_ok:
-            a_tilt = _STATE.get(x, "a_tilt")
-            x[_STATE.slice("a_tilt")] = a_tilt + low_pass_gain(p.tilt_cutoff, p.period) * (
-                tilt_acceleration(STATE_ESTIMATE.get(estimate, "q_EB")) - a_tilt)
+            a_held, v_before = _STATE.get(x, "a_held"), _STATE.get(x, "v_estimate")
+            a_B = (v_B - v_before) / p.period if np.all(np.isfinite(v_before)) else np.zeros(3)
+            x[_STATE.slice("a_held")] = a_held + low_pass_gain(p.tilt_cutoff, p.period) * (
+                held_acceleration(STATE_ESTIMATE.get(estimate, "q_EB"), a_B) - a_held)
+            x[_STATE.slice("v_estimate")] = v_B
         reference_before = _STATE.get(x, "p_ref").copy(), _STATE.get(x, "v_ref").copy()
 
         def go(new_mode: Mode, reason: Reason):
@@ -398,8 +403,9 @@ class LandingMission(LeafSystem):
             x[_STATE.slice("p_filtered")], x[_STATE.slice("v_filtered")] = p_f, v_f
             x[_STATE.slice("a_filtered")] = a_f
             if descent_rate > 0.0:
-                p_f = p_f + level_lead(_STATE.get(x, "a_tilt"), p.level_lead_time, height,
-                                       p.landing_p2_offset, p.level_lead_height)
+                p_f = p_f + level_lead(_STATE.get(x, "a_held"), p.level_lead_time, height,
+                                       p.landing_p2_offset, p.level_lead_height,
+                                       p.max_level_lead)
             z_ref, ceiling = _STATE.get(x, "p_ref")[2], p.waypoint[2]
             if descent_rate > 0.0 or z_ref >= ceiling:
                 z = max(z_ref - descent_rate * p.period, p_T[2] - 0.5)  # not through the plate

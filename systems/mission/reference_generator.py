@@ -56,19 +56,29 @@ def filter_acceleration(previous_a, previous_v, v, cutoff: float, max_accelerati
     return a * (max_acceleration / size) if size > max_acceleration else a
 
 
-def tilt_acceleration(q_EB) -> np.ndarray:
-    """Horizontal acceleration [m/s^2] (z zero) the thrust holds at the attitude q_EB at hover
-    thrust, g tan(tilt) toward the tilt; zero when tilted past 60 deg or not a rotation."""
+def held_acceleration(q_EB, a_B) -> np.ndarray:
+    """Horizontal acceleration [m/s^2] (z zero) the tilt holds against the air: g tan(tilt)
+    toward the tilt (the thrust's at hover) less the vehicle's own acceleration a_B (the rate of
+    its estimated velocity: the estimators' acceleration field is the mocap bank's twice
+    differentiated position, +-10 m/s^2 of noise), so what levelling takes away, not the
+    vehicle's manoeuvre (with the tilt alone, a vehicle behind and tilting forward to catch up
+    led its own reference further ahead: 6 m/s, seed 9). Zero when tilted past 60 deg or not
+    finite."""
     z_B = rotation_matrix(np.asarray(q_EB, float))[:, 2]
-    if not np.all(np.isfinite(z_B)) or z_B[2] < 0.5:
+    a_B = np.asarray(a_B, float)
+    if not (np.all(np.isfinite(z_B)) and np.all(np.isfinite(a_B))) or z_B[2] < 0.5:
         return np.zeros(3)
-    return np.array([GRAVITY * z_B[0] / z_B[2], GRAVITY * z_B[1] / z_B[2], 0.0])
+    return np.array([GRAVITY * z_B[0] / z_B[2] - a_B[0], GRAVITY * z_B[1] / z_B[2] - a_B[1],
+                     0.0])
 
 
-def level_lead(a_tilt, lead_time: float, height: float, ramp_start: float,
-               ramp_end: float) -> np.ndarray:
-    """Lead [m] of the descending reference for the level touchdown: a_tilt lead_time^2 / 2,
-    ramped in linearly as `height` goes from `ramp_start` down to `ramp_end` (full below)."""
+def level_lead(a_held, lead_time: float, height: float, ramp_start: float, ramp_end: float,
+               max_lead: float) -> np.ndarray:
+    """Lead [m] of the descending reference for the level touchdown: a_held lead_time^2 / 2,
+    ramped in linearly as `height` goes from `ramp_start` down to `ramp_end` (full below), its
+    length at most `max_lead`."""
     span = ramp_start - ramp_end
     share = 1.0 if span <= 0.0 else float(np.clip((ramp_start - height) / span, 0.0, 1.0))
-    return 0.5 * share * lead_time ** 2 * np.asarray(a_tilt, float)
+    lead = 0.5 * share * lead_time ** 2 * np.asarray(a_held, float)
+    size = float(np.linalg.norm(lead))
+    return lead * (max_lead / size) if size > max_lead else lead

@@ -24,6 +24,11 @@ without a velocity step either:
 - `descent_rate` > 0 with `height`: goes at that rate to `height` above the target (braking onto
   it) and follows it.
 
+A descent onto the platform (`descent_rate` > 0 without `height`) leads the target by the level
+touchdown's drift, a_held t^2 / 2 (`level_lead_time`, ramped in from `level_lead_start` down to
+`level_lead_height` above the target, at most `max_level_lead`; a_held the horizontal
+acceleration the vehicle's tilt holds against the air, low-passed), as the landing mission's reference does (reference_generator.level_lead).
+
 Without a usable target estimate (not valid, not finite, or in an estimator frame other than the
 current one or the one just left) the reference stops where it is and holds (TARGET_INVALID);
 when the target returns it starts again from there. A target estimate one frame switch behind
@@ -36,7 +41,9 @@ import numpy as np
 
 from alight.models import model_path
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
-from alight.systems.mission.reference_generator import filter_reference, predict_target
+from alight.systems.mission.reference_generator import (filter_reference, level_lead,
+                                                      low_pass_gain, predict_target,
+                                                      held_acceleration)
 from alight.systems.params import bounded, load_params
 from alight.systems.rotations import rotation_matrix
 from alight.systems.estimation.frames import reexpress_point
@@ -98,6 +105,15 @@ class TargetTrackerParams:
     catch_up_time: float = bounded(0.5, 0.01, 10.0, "s")          # offset time constant
     catch_up_acceleration: float = bounded(2.5, 0.1, 30.0, "m/s^2")  # |o''| at most
     vertical_acceleration: float = bounded(2.0, 0.1, 30.0, "m/s^2")  # on the vertical speed
+    # The level touchdown's lead (as the landing mission's, reference_generator.level_lead): a
+    # descent to the platform leads the target by a_held t^2 / 2 (t this time; 0: none) ...
+    level_lead_time: float = bounded(0.5, 0.0, 5.0, "s")
+    # ... ramped in from this height above the target (the mission's landing_p2_offset) ...
+    level_lead_start: float = bounded(2.5, 0.0, 50.0, "m")
+    # ... to this one (the level touchdown's), a_held low-passed at tilt_cutoff
+    level_lead_height: float = bounded(1.0, 0.0, 50.0, "m")
+    max_level_lead: float = bounded(0.4, 0.0, 5.0, "m")          # the lead's length at most
+    tilt_cutoff: float = bounded(1.0, 0.01, 100.0, "Hz")
     max_descent_rate: float = bounded(5.0, 0.05, 20.0, "m/s")     # larger goals are refused
 
 
@@ -109,6 +125,9 @@ class TargetMemory(ChiMemory):
     p_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
     v_filtered: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
     vertical_speed: float = 0.0          # m/s, the reference's relative to the target
+    a_held: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))   # low-passed, in E
+    v_estimate: np.ndarray = dc.field(default_factory=lambda: np.full(3, np.nan))  # last v_EB
+    lead: np.ndarray = dc.field(default_factory=lambda: np.zeros(2))     # the level lead now
     restart: bool = True
     old_frame_counter: float = np.nan
 
@@ -138,6 +157,8 @@ class TargetTracker(ChiTracker):
         super()._switch_frame(memory, R_OldNew, p_OldNew)
         memory.p_filtered = reexpress_point(memory.p_filtered, R_OldNew, p_OldNew)
         memory.v_filtered = R_OldNew.T @ memory.v_filtered
+        memory.a_held = R_OldNew.T @ memory.a_held
+        memory.v_estimate = R_OldNew.T @ memory.v_estimate
         memory.old_frame_counter = memory.frame_counter
 
     def _step(self, context, memory: TargetMemory, estimate) -> TargetReason:
@@ -150,6 +171,7 @@ class TargetTracker(ChiTracker):
             return TargetReason.OK if target is not None else TargetReason.TARGET_INVALID
         p_T, v_T = target
         params = self.params
+        self._lead(memory, estimate, p_T)
         if memory.restart:   # on from chi: its position and velocity (M Sec. 7.2)
             memory.p_filtered = predict_target(p_T, v_T, params.t_prediction)
             memory.v_filtered = np.array(v_T, dtype=float)
@@ -178,12 +200,34 @@ class TargetTracker(ChiTracker):
         # chi one period on against the filtered target one period on (the reference is stamped
         # there; against the target now it trailed a 5 m/s car by 5 cm)
         ahead = memory.p_filtered[:2] + memory.v_filtered[:2] * dt
-        offset = p + v * dt - ahead - memory.goal.offset
+        offset = p + v * dt - ahead - memory.goal.offset - memory.lead
         rate = -clip_norm(offset / params.catch_up_time, params.catch_up_speed)
         acceleration = clip_norm((rate - (v - memory.v_filtered[:2])) /
                                  (params.catch_up_time / 4.0), params.catch_up_acceleration)
         v = v + acceleration * dt
         return p + v * dt, v, acceleration
+
+    def _lead(self, memory: TargetMemory, estimate, p_T: np.ndarray) -> None:
+        """The tilt's horizontal acceleration low-passed, and the level touchdown's lead of a
+        descent onto the platform (none in Follow or toward a goal height)."""
+        params, goal = self.params, memory.goal
+        if estimate is None:
+            memory.lead = np.zeros(2)
+            return
+        gain = low_pass_gain(params.tilt_cutoff, self.period)
+        v_B = STATE_ESTIMATE.get(estimate, "v_EB")
+        a_B = (v_B - memory.v_estimate) / self.period if np.all(np.isfinite(
+            memory.v_estimate)) else np.zeros(3)
+        memory.v_estimate = np.array(v_B, dtype=float)
+        memory.a_held = memory.a_held + gain * (
+            held_acceleration(STATE_ESTIMATE.get(estimate, "q_EB"), a_B) - memory.a_held)
+        if goal.descent_rate > 0.0 and goal.height is None:
+            height = STATE_ESTIMATE.get(estimate, "p_EB")[2] - p_T[2]
+            memory.lead = level_lead(memory.a_held, params.level_lead_time, height,
+                                     params.level_lead_start, params.level_lead_height,
+                                     params.max_level_lead)[:2]
+        else:
+            memory.lead = np.zeros(2)
 
     def _vertical(self, memory: TargetMemory, z_T: float,
                   v_z_T: float) -> tuple[float, float, float, bool]:
