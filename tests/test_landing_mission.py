@@ -405,7 +405,7 @@ class TiltedScripted(Scripted):
 def test_the_descending_reference_leads_the_target_by_the_level_touchdown_s_drift():
     """Rolled -10 deg (g tan 10 deg = 1.73 m/s^2 along the car's +y), the ideal vehicle's
     reference is on the 2 m/s car in Follow and, in Landing Phase 2 below `level_lead_height`,
-    a_tilt t^2 / 2 = 21.6 cm ahead of it (t = `level_lead_time`, 0.5 s), half that halfway down
+    a_held t^2 / 2 = 21.6 cm ahead of it (t = `level_lead_time`, 0.5 s), half that halfway down
     the ramp from `landing_p2_offset`."""
     params = LandingMissionParams(t_prediction=0.0, level_lead_time=0.5)
     target = moving_target(2.0, appear=17.0)

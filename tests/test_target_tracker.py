@@ -216,7 +216,7 @@ def test_offset_goal_follows_beside_the_target_without_a_jump_at_the_change():
 def test_a_descent_onto_the_platform_leads_the_target_by_the_level_touchdown_s_drift(goal, lead):
     """Rolled -10 deg (its thrust holds g tan 10 deg = 1.73 m/s^2 along +y, as against the air
     over a moving car) 0.5 m above the platform, under `level_lead_height`: descending onto it,
-    the reference settles a_tilt t^2 / 2 = 21.6 cm ahead (t = `level_lead_time` 0.5 s); following,
+    the reference settles a_held t^2 / 2 = 21.6 cm ahead (t = `level_lead_time` 0.5 s); following,
     on it."""
     p_T = np.array([0.0, 0.0, 1.0])
     b = bench(goal, p_T, start=(0.0, 0.0, 1.5))

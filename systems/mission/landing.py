@@ -84,9 +84,9 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import (RANGE, REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE,
                                      VectorLayout)
-from alight.systems.mission.reference_generator import (filter_acceleration, filter_reference,
-                                                      level_lead, low_pass_gain,
-                                                      held_acceleration)
+from alight.systems.mission.reference_generator import (filter_acceleration,
+                                                      filter_held_acceleration,
+                                                      filter_reference, level_lead)
 from alight.systems.params import bounded
 
 
@@ -364,10 +364,9 @@ class LandingMission(LeafSystem):
             now - _STATE.get(x, "uncertain_since") >= p.uncertain_abort_time - 1e-9
         mode = Mode(int(_STATE.get(x, "mode")))
         if estimate_ok:
-            a_held, v_before = _STATE.get(x, "a_held"), _STATE.get(x, "v_estimate")
-            a_B = (v_B - v_before) / p.period if np.all(np.isfinite(v_before)) else np.zeros(3)
-            x[_STATE.slice("a_held")] = a_held + low_pass_gain(p.tilt_cutoff, p.period) * (
-                held_acceleration(STATE_ESTIMATE.get(estimate, "q_EB"), a_B) - a_held)
+            x[_STATE.slice("a_held")] = filter_held_acceleration(
+                _STATE.get(x, "a_held"), _STATE.get(x, "v_estimate"), v_B,
+                STATE_ESTIMATE.get(estimate, "q_EB"), p.tilt_cutoff, p.period)
             x[_STATE.slice("v_estimate")] = v_B
         reference_before = _STATE.get(x, "p_ref").copy(), _STATE.get(x, "v_ref").copy()
 

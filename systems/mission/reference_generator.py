@@ -72,6 +72,19 @@ def held_acceleration(q_EB, a_B) -> np.ndarray:
                      0.0])
 
 
+def filter_held_acceleration(previous_a, previous_v, v_EB, q_EB, cutoff: float,
+                             period: float) -> np.ndarray:
+    """One step of the low pass at `cutoff` [Hz] toward `held_acceleration`, the vehicle's own
+    acceleration the rate of its estimated velocity from `previous_v` to `v_EB` over `period`
+    (zero while `previous_v` is not finite: the first step)."""
+    previous_v = np.asarray(previous_v, float)
+    a_B = (np.asarray(v_EB, float) - previous_v) / period if np.all(np.isfinite(previous_v)) \
+        else np.zeros(3)
+    previous_a = np.asarray(previous_a, float)
+    return previous_a + low_pass_gain(cutoff, period) * (held_acceleration(q_EB, a_B)
+                                                         - previous_a)
+
+
 def level_lead(a_held, lead_time: float, height: float, ramp_start: float, ramp_end: float,
                max_lead: float) -> np.ndarray:
     """Lead [m] of the descending reference for the level touchdown: a_held lead_time^2 / 2,

@@ -27,7 +27,8 @@ without a velocity step either:
 A descent onto the platform (`descent_rate` > 0 without `height`) leads the target by the level
 touchdown's drift, a_held t^2 / 2 (`level_lead_time`, ramped in from `level_lead_start` down to
 `level_lead_height` above the target, at most `max_level_lead`; a_held the horizontal
-acceleration the vehicle's tilt holds against the air, low-passed), as the landing mission's reference does (reference_generator.level_lead).
+acceleration the vehicle's tilt holds against the air, low-passed), as the landing mission's
+reference does (reference_generator.level_lead).
 
 Without a usable target estimate (not valid, not finite, or in an estimator frame other than the
 current one or the one just left) the reference stops where it is and holds (TARGET_INVALID);
@@ -41,9 +42,9 @@ import numpy as np
 
 from alight.models import model_path
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TARGET_ESTIMATE
-from alight.systems.mission.reference_generator import (filter_reference, level_lead,
-                                                      low_pass_gain, predict_target,
-                                                      held_acceleration)
+from alight.systems.mission.reference_generator import (filter_held_acceleration,
+                                                      filter_reference, level_lead,
+                                                      predict_target)
 from alight.systems.params import bounded, load_params
 from alight.systems.rotations import rotation_matrix
 from alight.systems.estimation.frames import reexpress_point
@@ -127,7 +128,6 @@ class TargetMemory(ChiMemory):
     vertical_speed: float = 0.0          # m/s, the reference's relative to the target
     a_held: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))   # low-passed, in E
     v_estimate: np.ndarray = dc.field(default_factory=lambda: np.full(3, np.nan))  # last v_EB
-    lead: np.ndarray = dc.field(default_factory=lambda: np.zeros(2))     # the level lead now
     restart: bool = True
     old_frame_counter: float = np.nan
 
@@ -171,7 +171,7 @@ class TargetTracker(ChiTracker):
             return TargetReason.OK if target is not None else TargetReason.TARGET_INVALID
         p_T, v_T = target
         params = self.params
-        self._lead(memory, estimate, p_T)
+        lead = self._lead(memory, estimate, p_T)
         if memory.restart:   # on from chi: its position and velocity (M Sec. 7.2)
             memory.p_filtered = predict_target(p_T, v_T, params.t_prediction)
             memory.v_filtered = np.array(v_T, dtype=float)
@@ -180,7 +180,7 @@ class TargetTracker(ChiTracker):
             memory.p_filtered, memory.v_filtered, p_T, v_T, params.t_prediction,
             params.cutoff_position, params.cutoff_velocity, self.period)
         memory.restart = False
-        p_xy, v_xy, a_xy = self._catch_up(memory)
+        p_xy, v_xy, a_xy = self._catch_up(memory, lead)
         z, v_z, a_z, descending = self._vertical(memory, memory.p_filtered[2],
                                                  memory.v_filtered[2])
         chi[P.slice("p")] = [*p_xy, z]
@@ -190,7 +190,8 @@ class TargetTracker(ChiTracker):
             chi[P.slice(field)] = 0.0
         return TargetReason.DESCENDING if descending else TargetReason.OK
 
-    def _catch_up(self, memory: TargetMemory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _catch_up(self, memory: TargetMemory,
+                  lead: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One period of the catch-up's second-order law (module docstring) from chi, the last
         reference, toward the filtered target plus the goal's offset: the reference's horizontal
         (position, velocity, acceleration). Its velocity is continuous also while the target
@@ -200,34 +201,30 @@ class TargetTracker(ChiTracker):
         # chi one period on against the filtered target one period on (the reference is stamped
         # there; against the target now it trailed a 5 m/s car by 5 cm)
         ahead = memory.p_filtered[:2] + memory.v_filtered[:2] * dt
-        offset = p + v * dt - ahead - memory.goal.offset - memory.lead
+        offset = p + v * dt - ahead - memory.goal.offset - lead
         rate = -clip_norm(offset / params.catch_up_time, params.catch_up_speed)
         acceleration = clip_norm((rate - (v - memory.v_filtered[:2])) /
                                  (params.catch_up_time / 4.0), params.catch_up_acceleration)
         v = v + acceleration * dt
         return p + v * dt, v, acceleration
 
-    def _lead(self, memory: TargetMemory, estimate, p_T: np.ndarray) -> None:
-        """The tilt's horizontal acceleration low-passed, and the level touchdown's lead of a
-        descent onto the platform (none in Follow or toward a goal height)."""
+    def _lead(self, memory: TargetMemory, estimate, p_T: np.ndarray) -> np.ndarray:
+        """The level touchdown's horizontal lead of a descent onto the platform (zero in Follow,
+        toward a goal height or without an estimate), with the held acceleration's low pass
+        stepped in `memory`."""
         params, goal = self.params, memory.goal
         if estimate is None:
-            memory.lead = np.zeros(2)
-            return
-        gain = low_pass_gain(params.tilt_cutoff, self.period)
+            return np.zeros(2)
         v_B = STATE_ESTIMATE.get(estimate, "v_EB")
-        a_B = (v_B - memory.v_estimate) / self.period if np.all(np.isfinite(
-            memory.v_estimate)) else np.zeros(3)
+        memory.a_held = filter_held_acceleration(
+            memory.a_held, memory.v_estimate, v_B, STATE_ESTIMATE.get(estimate, "q_EB"),
+            params.tilt_cutoff, self.period)
         memory.v_estimate = np.array(v_B, dtype=float)
-        memory.a_held = memory.a_held + gain * (
-            held_acceleration(STATE_ESTIMATE.get(estimate, "q_EB"), a_B) - memory.a_held)
-        if goal.descent_rate > 0.0 and goal.height is None:
-            height = STATE_ESTIMATE.get(estimate, "p_EB")[2] - p_T[2]
-            memory.lead = level_lead(memory.a_held, params.level_lead_time, height,
-                                     params.level_lead_start, params.level_lead_height,
-                                     params.max_level_lead)[:2]
-        else:
-            memory.lead = np.zeros(2)
+        if goal.descent_rate == 0.0 or goal.height is not None:
+            return np.zeros(2)
+        height = STATE_ESTIMATE.get(estimate, "p_EB")[2] - p_T[2]
+        return level_lead(memory.a_held, params.level_lead_time, height, params.level_lead_start,
+                          params.level_lead_height, params.max_level_lead)[:2]
 
     def _vertical(self, memory: TargetMemory, z_T: float,
                   v_z_T: float) -> tuple[float, float, float, bool]:
