@@ -48,6 +48,12 @@ e_xy 16.54 -> 20.56 cm, ahead 16.41 -> 20.49 cm (without wind the lead is small;
 no longer trails the car, and this seed's car slows in the descent); touchdown 1.83 -> 1.80 m/s;
 the transitions, tracking and touchdown time unchanged. The windy campaigns it was made for
 (VIO): 5 m/s 20/20, e_xy median 16.9 -> 14.9 cm; 2 and 4 m/s 10.0 / 13.7 -> 9.2 / 11.2 cm.
+Re-recorded when the landing MPC took its soft bounds about the reference's motion
+(`reference_authority`, models/linear_mpc_landing.yaml: the speed bound |v_ref| + 3 m/s where
+that exceeds 8.5 m/s, the 20 deg tilt about the tilt that holds the reference's motion; issue
+23's 8 m/s cars): at 2 m/s the holding tilt is about 1 deg, and the catch-up came one mission
+tick sooner (CAUGHT_UP 20.40 -> 20.30 s, every later transition 0.1-0.15 s sooner), e_xy
+20.56 -> 19.68 cm, touchdown 1.80 -> 1.98 m/s (within the impact limit of 3 m/s).
 """
 import pytest
 
@@ -56,16 +62,16 @@ from alight.diagrams.running.runner import run as run_scenario
 from alight.diagrams.scenario import load_scenario
 from alight.systems.mission.landing import Mode, Reason
 
-RECORDED = dict(e_xy=0.2056, e_ahead=0.2049, tracking_duration=4.57, mission_time=23.02,
-                touchdown_speed=1.800, target_speed=2.077)
+RECORDED = dict(e_xy=0.1968, e_ahead=0.1960, tracking_duration=4.46, mission_time=22.91,
+                touchdown_speed=1.979, target_speed=2.092)
 TOLERANCE = dict(e_xy=0.02, e_ahead=0.02, tracking_duration=0.1, mission_time=0.1,
                  touchdown_speed=0.15, target_speed=0.05)
 TRANSITIONS = [(1.05, Mode.TAKING_OFF, Reason.ESTIMATE_VALID),
                (11.90, Mode.WAYPOINT, Reason.TAKEOFF_HEIGHT),
                (18.50, Mode.FOLLOW, Reason.DETECTION),
-               (20.40, Mode.LANDING_P1, Reason.CAUGHT_UP),
-               (21.85, Mode.LANDING_P2, Reason.BELOW_P2_OFFSET),
-               (23.05, Mode.LANDED, Reason.BELOW_LANDED_OFFSET)]
+               (20.30, Mode.LANDING_P1, Reason.CAUGHT_UP),
+               (21.75, Mode.LANDING_P2, Reason.BELOW_P2_OFFSET),
+               (22.90, Mode.LANDED, Reason.BELOW_LANDED_OFFSET)]
 TRANSITION_TOLERANCE = 0.1  # s
 
 

@@ -55,6 +55,39 @@ def test_qp_moves_toward_the_reference_within_bounds():
     assert qp.slacks(result).max() < 0.05  # a 5 m step needs no constraint violation in prediction
 
 
+@pytest.mark.parametrize("authority", [False, True])
+def test_soft_bounds_about_a_fast_references_motion_let_the_vehicle_close_on_it(authority):
+    """Issue 23: 6 m behind a reference driving at 9 m/s, with 2 m/s^2 of drag to hold against
+    (17.3 deg of pitch): the landing MPC's soft bounds about hover (8.5 m/s, 20 deg) make it
+    brake and fall further behind; taken about the reference's motion (`reference_authority`:
+    |v_ref| + 3 m/s, 20 deg about the holding tilt, the hard 30 deg still the limit) it
+    closes the gap within the 1 s horizon, every soft bound met."""
+    p = dc.replace(load_linear_mpc("linear_mpc_landing.yaml"), reference_authority=authority)
+    dut, d = LinearMpc(load_linear_model(), p), np.array([-2.0, 0.0, 0.0])
+    s_y, s_u = dut.references(REFERENCE.pack(stamp=0.0, p=np.zeros(3), v=[9.0, 0.0, 0.0],
+                                             a=np.zeros(3), j=np.zeros(3), heading=0.0,
+                                             heading_rate=0.0), 0.0, d)
+    hold = s_u[0]
+    assert np.degrees(hold) == pytest.approx(17.33, abs=0.01)
+    x0 = np.zeros(10)
+    x0[0], x0[3], x0[6] = -6.0, 9.0, hold
+    qp = dut._qp
+    if authority:
+        qp.about(s_y, s_u, p.speed_margin)
+    qp.update(x0, s_y, s_u, s_u[:3], d)
+    result = qp.solve()
+    u = qp.inputs(result)
+    states = (qp.Phi @ x0 + qp.Gamma @ u.ravel() + qp.Psi @ d).reshape(p.horizon_steps, -1)
+    gap = states[-1, 0] - s_y.reshape(p.horizon_steps, -1)[-1, 0]   # behind the reference
+    assert result.ok
+    assert np.all(np.abs(u[:, :2]) <= np.radians(p.max_tilt_command) + 1e-6)
+    if authority:
+        assert u[0, 0] > hold + np.radians(10.0) and states[:, 3].max() > 10.5
+        assert gap > -5.5 and qp.slacks(result).max() < 1e-6
+    else:
+        assert u[0, 0] < 0.0 and gap < -6.4 and qp.slacks(result).max() > 0.4
+
+
 def test_soft_constraints_keep_the_qp_feasible_when_the_state_violates_them():
     params = load_linear_mpc()
     qp = LinearMpcQp(load_linear_model(), params)

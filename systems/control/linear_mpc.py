@@ -95,6 +95,14 @@ class LinearMpcParams:
     # (tests/test_wind_offsets.py), 15 cm at 5 m/s.
     max_prediction: float = bounded(0.1, 0.0, 0.5, "s")
     max_disturbance: float = bounded(3.0, 0.0, 9.81, "m/s^2")
+    # Authority for fast targets (not in the paper, issue 23): the soft bounds of L(25)-(26)
+    # taken about the reference's motion instead of about hover: per step, the horizontal speed
+    # bound max(max_velocity, |v_ref| + speed_margin) per axis, and max_tilt about the tilt that
+    # holds the reference's motion against drag and the disturbance (s_u), predicted and
+    # commanded. With fixed bounds a car at 8 m/s in 15 km/h wind takes 13 of the 20 degrees to
+    # hold its speed and an 8.5 m/s bound closes on it at 0.5 m/s (docs/landing.md "Fast cars").
+    reference_authority: bool = False
+    speed_margin: float = bounded(3.0, 0.0, 30.0, "m/s")
     # persistent: one warm-started osqp workspace built from the MathematicalProgram;
     # drake: Drake's OsqpSolver, set up cold every tick; daqp: one warm-started DAQP (dual
     # active-set) workspace built from the same program, exact and with a bounded tail
@@ -215,7 +223,9 @@ class LinearMpcQp:
         self._GammaT, self._GT = self.Gamma.T, self._G.T
         self._bound = self.h.copy()
         self._bound_states = self._bound[:self.num_state_rows].reshape(N, -1)
-        self._h_states = self.h[:self.num_state_rows].reshape(N, -1)
+        self._h_states = self.h[:self.num_state_rows].reshape(N, -1).copy()  # `about`'s
+        self._h_commanded = self._bound[self.num_state_rows:].reshape(N, -1)  # (a view)
+        self._limits = (np.array(p.max_velocity[:2]), np.radians(p.max_tilt))
         self.last: QpResult | None = None  # the last solve's result (iterations: bench)
         self.solver = OsqpSolver()
         self.options = SolverOptions()
@@ -241,6 +251,18 @@ class LinearMpcQp:
         np.subtract(self._h_states, free.reshape(self.N, NUM_STATES) @ self._GT,
                     out=self._bound_states)
         soft.UpdateUpperBound(self._bound)
+
+    def about(self, s_y: np.ndarray, s_u: np.ndarray, speed_margin: float) -> None:
+        """Soft bounds about the reference's motion (`reference_authority`) for the next
+        `update`: the horizontal speed bounds max(max_velocity, |v_ref| + speed_margin) and
+        max_tilt about the holding tilt s_u, of the predicted and the commanded pitch and roll."""
+        y, u = s_y.reshape(self.N, NUM_STATES), s_u.reshape(self.N, NUM_INPUTS)
+        max_velocity, max_tilt = self._limits
+        speed = np.maximum(max_velocity, np.abs(y[:, 3:5]) + speed_margin)
+        self._h_states[:, 0:4] = np.repeat(speed, 2, axis=1)      # +-v_x, +-v_y
+        for rows, hold in ((self._h_states[:, 6:10], y[:, 6:8]), (self._h_commanded, u[:, :2])):
+            rows[:, 0::2] = max_tilt + hold                        # +theta, +phi <=
+            rows[:, 1::2] = max_tilt - hold                        # -theta, -phi <=
 
     def solve(self) -> QpResult:
         """Solves the program with its current data; `inputs(result)`, `slacks(result)`."""
@@ -413,7 +435,10 @@ class LinearMpc(Controller):
         d_N_vector = np.array(d_N)
         v_N = to_navigation(r[_R_V], cos_yaw, sin_yaw)
         a_N = to_navigation(r[_R_A], cos_yaw, sin_yaw)
-        self._qp.update(x0, *self._references(v_N, d_N, self._s_y, a_N),
+        s_y, s_u = self._references(v_N, d_N, self._s_y, a_N)
+        if self._p.reference_authority:
+            self._qp.about(s_y, s_u, self._p.speed_margin)
+        self._qp.update(x0, s_y, s_u,
                         previous if all(map(math.isfinite, previous.tolist())) else None,
                         d_N_vector)
         result = self._qp.solve()
