@@ -197,6 +197,41 @@ def test_a_lost_target_is_pursued_along_its_last_motion_then_searched_from_the_w
     assert [m for _, m, _ in again] == [Mode.TAKING_OFF, Mode.WAYPOINT, Mode.FOLLOW]
 
 
+class ReinitializedAt(Scripted):
+    """As Scripted, but in [start, end) the target EKF reports what a re-initialization from a
+    detection gives: the position seen, zero velocity with a 5 m/s std."""
+
+    def __init__(self, target, start, end):
+        super().__init__(target)
+        self._window = (start, end)
+
+    def _target_estimate(self, context, output):
+        super()._target_estimate(context, output)
+        if self._window[0] <= context.get_time() < self._window[1]:
+            estimate = output.get_mutable_value()
+            estimate[TARGET_ESTIMATE.slice("v_WT")] = 0.0
+            estimate[TARGET_ESTIMATE.slice("var_v")] = 25.0
+
+
+def test_a_re_initialized_target_velocity_does_not_stop_the_reference():
+    """In Landing Phase 2 over a car at 6 m/s, the target EKF re-initializes for 0.1 s (zero
+    velocity, 5 m/s std): the reference goes on at the filtered 6 m/s instead of dropping to
+    zero (`max_velocity_std` 1 m/s), and the landing runs on as without it."""
+    car = moving_target(6.0, appear=17.0)
+    logs = fly(car, 25.0, script=ReinitializedAt(car, 18.8, 18.9))
+    t, reference = logs["reference"]
+    v_y = reference[:, REFERENCE.slice("v")][:, 1]
+    window = (t >= 18.8) & (t < 19.0)
+    assert window.sum() >= 4 and np.all(np.abs(v_y[window] - 6.0) < 0.05), v_y[window]
+    assert [m for _, m, _ in transitions(logs)] == [m for _, m, _ in transitions(fly(car, 25.0))]
+    assert transitions(logs)[-1][1] == Mode.LANDED
+    # what it guards against: with the EKF's every velocity fed, the reference stops
+    dropped = fly(car, 19.0, script=ReinitializedAt(car, 18.8, 18.9),
+                  params=LandingMissionParams(max_velocity_std=100.0))["reference"]
+    assert np.abs(dropped[1][(dropped[0] >= 18.85) & (dropped[0] < 18.9),
+                             REFERENCE.slice("v")][:, 1]).max() < 1.0
+
+
 def test_a_short_loss_in_phase_1_aborts_to_follow_not_to_the_waypoint_and_lands():
     """The ideal vehicle is in Landing Phase 1 at 17.1 s; unseen 17.3-19.0 s, the growing
     uncertainty aborts the descent (predicted miss over 0.6 m) to Follow, never to Waypoint."""

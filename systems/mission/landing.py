@@ -106,6 +106,13 @@ class LandingMissionParams:
     # ... learned only while the EKF's horizontal velocity std is under this: its velocity
     # converging after a detection (3 -> 0.06 m/s std in 0.6 s) is not the car's acceleration
     acceleration_velocity_std: float = bounded(0.1, 0.001, 10.0, "m/s")
+    # Following, once the target EKF has known the horizontal velocity within this std, a
+    # velocity it no longer knows (a re-initialized EKF starts at zero velocity, 5 m/s std)
+    # does not reach the reference: the filtered one goes on (at 8 m/s the reference's
+    # velocity dropped to zero for a tick or two in the descent, the MPC braked, and the
+    # vehicle hit the car 0.9 m behind its centre). Until then (the first frames after a
+    # detection) the converging velocity is fed as it comes.
+    max_velocity_std: float = bounded(1.0, 0.001, 100.0, "m/s")
     t_prediction: float = bounded(0.1, 0.0, 5.0, "s")           # t_Prediction
     detection_timeout: float = bounded(0.5, 0.05, 60.0, "s")    # t_DetectionTimeOut (to Follow)
     sigma_k: float = bounded(3.0, 0.5, 10.0)                    # k of the k-sigma bounds below
@@ -219,10 +226,12 @@ MISSION_STATUS = VectorLayout("mission_status", [
 # Discrete state: the status fields above, then the reference (with the time of the tick that
 # computed it), the filtered target reference, the low-passed acceleration the tilt holds, the
 # last estimated velocity (its rate, nan before) and the start position.
+_FOLLOWING = (Mode.FOLLOW, Mode.LANDING_P1, Mode.LANDING_P2)  # the reference on the target
 _STATE = VectorLayout("landing_mission_state", [
     *MISSION_STATUS.fields, ("ref_stamp", 1), ("p_ref", 3), ("v_ref", 3), ("a_ref", 3),
     ("p_filtered", 3), ("a_held", 3), ("v_estimate", 3),
-    ("v_filtered", 3), ("a_filtered", 3), ("start", 3), ("uncertain_since", 1)])
+    ("v_filtered", 3), ("a_filtered", 3), ("start", 3), ("uncertain_since", 1),
+    ("velocity_known", 1)])
 
 
 class LandingMission(LeafSystem):
@@ -340,10 +349,16 @@ class LandingMission(LeafSystem):
             x[_STATE.slice("last_detection")] = TARGET_ESTIMATE.get(target, "last_measurement")
             if np.isnan(_STATE.get(x, "first_detection")):
                 x[_STATE.slice("first_detection")] = now
+        mode = Mode(int(_STATE.get(x, "mode")))
         if not tracked:
             # No usable estimate now: continue on the last filtered target motion.
             v_T = _STATE.get(x, "v_filtered")
             p_T = _STATE.get(x, "p_filtered") + v_T * p.period - p.t_prediction * v_T
+        elif mode in _FOLLOWING:
+            if np.sqrt(np.max(TARGET_ESTIMATE.get(target, "var_v")[:2])) <= p.max_velocity_std:
+                x[_STATE.slice("velocity_known")] = 1.0
+            elif _STATE.get(x, "velocity_known"):
+                v_T = _STATE.get(x, "v_filtered")   # unknown again: the filtered one goes on
         # (lost: the last motion continues, its acceleration decays in the low pass)
         velocity_settled = not tracked or bool(np.sqrt(np.max(TARGET_ESTIMATE.get(
             target, "var_v")[:2])) <= p.acceleration_velocity_std)
@@ -362,7 +377,6 @@ class LandingMission(LeafSystem):
             x[_STATE.slice("uncertain_since")] = now
         long_uncertain = not certain and \
             now - _STATE.get(x, "uncertain_since") >= p.uncertain_abort_time - 1e-9
-        mode = Mode(int(_STATE.get(x, "mode")))
         if estimate_ok:
             x[_STATE.slice("a_held")] = filter_held_acceleration(
                 _STATE.get(x, "a_held"), _STATE.get(x, "v_estimate"), v_B,
@@ -425,6 +439,7 @@ class LandingMission(LeafSystem):
             x[_STATE.slice("a_ref")][:2] = 0.0
 
         def start_following():
+            x[_STATE.slice("velocity_known")] = 0.0   # a new EKF's velocity converging: fed
             x[_STATE.slice("p_filtered")] = p_T + p.t_prediction * v_T
             x[_STATE.slice("v_filtered")] = v_T
             x[_STATE.slice("a_filtered")] = 0.0
