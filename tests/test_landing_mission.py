@@ -216,7 +216,7 @@ class ReinitializedAt(Scripted):
 def test_a_re_initialized_target_velocity_does_not_stop_the_reference():
     """In Landing Phase 2 over a car at 6 m/s, the target EKF re-initializes for 0.1 s (zero
     velocity, 5 m/s std): the reference goes on at the filtered 6 m/s instead of dropping to
-    zero (`max_velocity_std` 1 m/s), and the landing runs on as without it."""
+    zero (`max_velocity_std` 0.3 m/s), and the landing runs on as without it."""
     car = moving_target(6.0, appear=17.0)
     logs = fly(car, 25.0, script=ReinitializedAt(car, 18.8, 18.9))
     t, reference = logs["reference"]

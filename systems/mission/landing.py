@@ -110,9 +110,10 @@ class LandingMissionParams:
     # velocity it no longer knows (a re-initialized EKF starts at zero velocity, 5 m/s std)
     # does not reach the reference: the filtered one goes on (at 8 m/s the reference's
     # velocity dropped to zero for a tick or two in the descent, the MPC braked, and the
-    # vehicle hit the car 0.9 m behind its centre). Until then (the first frames after a
-    # detection) the converging velocity is fed as it comes.
-    max_velocity_std: float = bounded(1.0, 0.001, 100.0, "m/s")
+    # vehicle hit the car 0.9 m behind its centre; 1 m/s let through a re-initialized EKF's
+    # velocity still 4 m/s off). Until then (the first frames after a detection) the
+    # converging velocity is fed as it comes.
+    max_velocity_std: float = bounded(0.3, 0.001, 100.0, "m/s")
     t_prediction: float = bounded(0.1, 0.0, 5.0, "s")           # t_Prediction
     detection_timeout: float = bounded(0.5, 0.05, 60.0, "s")    # t_DetectionTimeOut (to Follow)
     sigma_k: float = bounded(3.0, 0.5, 10.0)                    # k of the k-sigma bounds below
