@@ -226,7 +226,8 @@ MISSION_STATUS = VectorLayout("mission_status", [
 
 # Discrete state: the status fields above, then the reference (with the time of the tick that
 # computed it), the filtered target reference, the low-passed acceleration the tilt holds, the
-# last estimated velocity (its rate, nan before) and the start position.
+# last estimated velocity (its rate, nan before), the start position, since when the predicted
+# miss is uncertain, and whether the target EKF has known the velocity since Follow began.
 _FOLLOWING = (Mode.FOLLOW, Mode.LANDING_P1, Mode.LANDING_P2)  # the reference on the target
 _STATE = VectorLayout("landing_mission_state", [
     *MISSION_STATUS.fields, ("ref_stamp", 1), ("p_ref", 3), ("v_ref", 3), ("a_ref", 3),
@@ -351,18 +352,18 @@ class LandingMission(LeafSystem):
             if np.isnan(_STATE.get(x, "first_detection")):
                 x[_STATE.slice("first_detection")] = now
         mode = Mode(int(_STATE.get(x, "mode")))
+        velocity_std = float(np.sqrt(np.max(TARGET_ESTIMATE.get(target, "var_v")[:2])))
         if not tracked:
             # No usable estimate now: continue on the last filtered target motion.
             v_T = _STATE.get(x, "v_filtered")
             p_T = _STATE.get(x, "p_filtered") + v_T * p.period - p.t_prediction * v_T
         elif mode in _FOLLOWING:
-            if np.sqrt(np.max(TARGET_ESTIMATE.get(target, "var_v")[:2])) <= p.max_velocity_std:
+            if velocity_std <= p.max_velocity_std:
                 x[_STATE.slice("velocity_known")] = 1.0
             elif _STATE.get(x, "velocity_known"):
                 v_T = _STATE.get(x, "v_filtered")   # unknown again: the filtered one goes on
         # (lost: the last motion continues, its acceleration decays in the low pass)
-        velocity_settled = not tracked or bool(np.sqrt(np.max(TARGET_ESTIMATE.get(
-            target, "var_v")[:2])) <= p.acceleration_velocity_std)
+        velocity_settled = not tracked or velocity_std <= p.acceleration_velocity_std
         height = p_B[2] - p_T[2]
         t_blind = time_to_touchdown(min(height, p.blind_height), p)
         sigma_go = horizontal_sigma(target, t_blind, p.target_velocity_noise) \
