@@ -254,8 +254,9 @@ def test_keypoint_jacobian_matches_finite_differences(ekf):
 def test_a_re_initialization_keeps_a_known_velocity_and_not_an_unknown_one(ekf):
     """The car does not stop when its track is lost to wrong associations: a valid filter's
     velocity known within `reinit_keep_velocity_std` survives a re-initialization from a
-    detection, with `reinit_velocity_std`; the first initialization, an invalid filter and an
-    unknown velocity start at zero (L Sec. 5.2.2)."""
+    detection, with `reinit_velocity_std` (or its own std, if larger), and survives the next
+    one too; the first initialization, an invalid filter and an unknown velocity start at zero
+    (L Sec. 5.2.2)."""
     params = load_target_estimator_params()
     estimator = TargetEstimator(Pattern(params.pattern), params)
     state = EstimatorState(ekf, PoseHistory(1.0), valid=True)
@@ -266,7 +267,13 @@ def test_a_re_initialization_keeps_a_known_velocity_and_not_an_unknown_one(ekf):
     ekf.initialize(1.0, [3.0, 4.0, 1.0], [1.0, 0.0, 0.0, 0.0], 4.2, (v, a, std))
     np.testing.assert_allclose(ekf.v, [0.0, 5.0, 0.0])
     np.testing.assert_allclose(np.sqrt(np.diag(ekf.P)[6:9]), std)
-    # kept once: the re-initialized velocity (0.5 m/s std) is not known well enough to keep again
+    # kept once, kept again (with 0.3 m/s the second re-initialization of an 8 m/s car zeroed it)
+    ekf.predict(1.1)
+    v, a, std = estimator._kept_motion(state)
+    np.testing.assert_allclose(v, [0.0, 5.0, 0.0])
+    assert std == pytest.approx(ekf.horizontal_velocity_std) and std > params.reinit_velocity_std
+    # not known well enough: zero
+    ekf.P[6:9, 6:9] = np.diag([1.5 * params.reinit_keep_velocity_std] * 3) ** 2
     assert estimator._kept_motion(state) is None
     ekf.P[6:9, 6:9] = np.diag([0.2, 0.2, 0.2]) ** 2
     assert estimator._kept_motion(dc.replace(state, valid=False)) is None

@@ -68,9 +68,12 @@ class TargetEstimatorParams:
     # accepted re-initialized the filter at zero velocity frame after frame)
     track_velocity_std: float = bounded(1.0, 0.0, 100.0, "m/s")
     # a re-initialization of a valid filter whose horizontal velocity std is under this keeps
-    # its velocity (and acceleration), with the velocity std `reinit_velocity_std` (beyond the
-    # paper's zero velocity: the car did not stop when the track was lost); 0: always zero
-    reinit_keep_velocity_std: float = bounded(0.3, 0.0, 100.0, "m/s")
+    # its velocity (and acceleration), with the velocity std `reinit_velocity_std` or its own if
+    # larger (beyond the paper's zero velocity: the car did not stop when the track was lost);
+    # 0: always zero. At least `reinit_velocity_std`, so that a kept velocity is kept again: with
+    # 0.3 a second re-initialization soon after the first zeroed the velocity of a car at 8 m/s
+    # (8 of 20 runs of the 8 m/s campaign; docs/landing.md "Fast cars")
+    reinit_keep_velocity_std: float = bounded(1.0, 0.0, 100.0, "m/s")
     reinit_velocity_std: float = bounded(0.5, 0.0, 100.0, "m/s")
     lost_timeout: float = bounded(2.0, 0.0, 600.0, "s")
     # search the whole frame at the coarsest pyramid level that resolves the pattern from the
@@ -292,14 +295,17 @@ class TargetEstimator(LeafSystem):
         return ekf.horizontal_velocity_std <= self._params.track_velocity_std
 
     def _kept_motion(self, st: EstimatorState) -> tuple[np.ndarray, np.ndarray, float] | None:
-        """The motion a re-initialization keeps (v, a, velocity std; `reinit_keep_velocity_std`),
-        or None: zero velocity (L Sec. 5.2.2; the first initialization, a filter no longer valid
-        or one whose velocity is not known)."""
+        """The motion a re-initialization keeps (v, a, velocity std: `reinit_velocity_std`, or
+        the filter's own if larger; `reinit_keep_velocity_std`), or None: zero velocity (L Sec.
+        5.2.2; the first initialization, a filter no longer valid or one whose velocity is not
+        known)."""
         p, ekf = self._params, st.ekf
-        if not st.valid or not ekf.initialized or \
-                ekf.horizontal_velocity_std > p.reinit_keep_velocity_std:
+        if not st.valid or not ekf.initialized:
             return None
-        return ekf.v, ekf.a, p.reinit_velocity_std
+        std = ekf.horizontal_velocity_std
+        if std > p.reinit_keep_velocity_std:
+            return None
+        return ekf.v, ekf.a, max(p.reinit_velocity_std, std)
 
     def front_end(self, frame: CameraFrame, X_CT_predicted: RigidTransform | None = None,
                   R_CT_reference=None, z_up_C=None):
