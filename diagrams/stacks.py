@@ -22,6 +22,7 @@ from alight.diagrams.onboard.vio import vio_from_start
 from alight.diagrams.onboard.waypoints import add_waypoint_onboard, mission_duration
 from alight.diagrams.running.run_log import RunLoggers
 from alight.diagrams.scenario import Scenario
+from alight.systems.control.linear_mpc import resolve_disturbance
 
 
 @dc.dataclass
@@ -48,9 +49,14 @@ def scenario_estimator(scenario: Scenario, anchored: bool = True):
                              key="onboard.estimator") or mocap_odometry(onboard.mocap)
 
 
+def _linear_mpc(onboard):
+    """The scenario's linear MPC parameters for its odometry (`resolve_disturbance`)."""
+    return resolve_disturbance(onboard.linear_mpc, onboard.estimator)
+
+
 def _landing(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard = scenario.onboard
-    parts = add_landing_onboard(builder, vehicle, scenario.mission, onboard.linear_mpc,
+    parts = add_landing_onboard(builder, vehicle, scenario.mission, _linear_mpc(onboard),
                                 onboard.linear_model, odometry, onboard.perception,
                                 onboard.failsafe_switch, scenario.camera_blackouts,
                                 command_filter(scenario.faults.command), onboard.touchdown)
@@ -61,7 +67,7 @@ def _landing(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
 def _landing_managed(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard = scenario.onboard
     parts = add_landing_managed(builder, vehicle, scenario.mission, onboard.control_manager,
-                                onboard.controller, onboard.linear_mpc, odometry,
+                                onboard.controller, _linear_mpc(onboard), odometry,
                                 onboard.perception, scenario.camera_blackouts, onboard.touchdown)
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,
                         parts.finished(scenario.scoring.settle_time),
@@ -71,7 +77,7 @@ def _landing_managed(builder, scenario: Scenario, vehicle, odometry) -> OnboardS
 def _waypoints(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard, waypoints = scenario.onboard, np.asarray(scenario.mission.waypoints, float)
     parts = add_waypoint_onboard(builder, vehicle, waypoints, scenario.mission.params, odometry,
-                                 onboard.linear_mpc, onboard.linear_model,
+                                 _linear_mpc(onboard), onboard.linear_model,
                                  onboard.failsafe_switch, command_filter(scenario.faults.command))
     return OnboardStack(parts.loggers, mission_duration(waypoints,
                                                         scenario.simulator.max_duration),

@@ -12,6 +12,7 @@ from alight.diagrams.onboard.mpc_loop import load_linear_mpc
 from alight.diagrams.running.flights import fly_landoff, fly_reference
 from alight.diagrams.running.track import resting_position
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
+from alight.systems.control.linear_mpc import resolve_disturbance
 from alight.systems.plant.wind import WindParams
 from alight.systems.tracking.landoff_tracker import LandoffGoal
 
@@ -45,7 +46,7 @@ def _follow(t):
 @pytest.mark.parametrize("gain", [None, 0.0])   # None: the landing MPC's YAML (offset-free)
 @pytest.mark.parametrize("case", ["hover", "follow"])
 def test_landing_mpc_offset_in_steady_wind(vehicle_config, tmp_path, case, gain):
-    params = load_linear_mpc("linear_mpc_landing.yaml")
+    params = resolve_disturbance(load_linear_mpc("linear_mpc_landing.yaml"), "mocap")
     if gain is not None:
         params = dc.replace(params, disturbance_gain=gain)
     fn = (lambda t: (HOVER, np.zeros(3))) if case == "hover" else _follow

@@ -49,8 +49,8 @@ from alight.systems.rotations import product_floats, quaternion_heading
 from alight.systems.thrust_curve import ThrustCurve
 
 # The fields the tick reads, as indices into the vectors' `tolist()`
-_E_STAMP, _E_P, _E_V, _E_HEADING = (STATE_ESTIMATE.slice(field) for field in
-                                    ("stamp", "p_EB", "v_EB", "heading"))
+_E_STAMP, _E_P, _E_V, _E_A, _E_HEADING = (STATE_ESTIMATE.slice(field) for field in
+                                          ("stamp", "p_EB", "v_EB", "a_EB", "heading"))
 _E_STAMP, _E_HEADING = _E_STAMP.start, _E_HEADING.start
 _R_STAMP, _R_P, _R_V, _R_A, _R_HEADING = (REFERENCE.slice(field) for field in
                                           ("stamp", "p", "v", "a", "heading"))
@@ -83,6 +83,15 @@ class LinearMpcParams:
     # Offset-free extension (not in the paper): fraction of the velocity prediction error added to
     # the disturbance estimate per tick (0: off, the paper's controller), and its bound.
     disturbance_gain: float = bounded(0.0, 0.0, 1.0)
+    # What d is learned from: `velocity`, the one-step velocity prediction error (the
+    # odometry's velocity differentiated over a tick, `disturbance_gain` of it per tick);
+    # `acceleration`, the state estimate's measured acceleration a_EB (the VIO's: the IMU's
+    # specific force rotated, less gravity) less L(11)'s horizontal v_dot at the vehicle's
+    # attitude and velocity, low-passed by `acceleration_gain` per tick (a mocap or bank a_EB is
+    # a differentiated position, +-10 m/s^2 of noise: not for this); `auto`, acceleration on VIO
+    # odometry and velocity on any other (resolved by the stack builder, `resolve_disturbance`).
+    disturbance_source: str = choice("velocity", "acceleration", "auto")
+    acceleration_gain: float = bounded(0.2, 0.0, 1.0)
     # Safety extension (not in the paper): the reference position is taken at most this far
     # from the estimate (a carrot on the line to it). The soft velocity and tilt bounds of
     # L(25)-(26) give way under a large position error (a 200 m step back to the waypoint flew
@@ -113,6 +122,15 @@ class LinearMpcParams:
 
 
 MPC_DISTURBANCE = VectorLayout("mpc_disturbance", [("d_W", 3)])  # the `disturbance` output
+
+
+def resolve_disturbance(params: LinearMpcParams, estimator: str) -> LinearMpcParams:
+    """`params` with `disturbance_source: auto` made `acceleration` on the VIO's odometry (its
+    a_EB is measured) and `velocity` on any other."""
+    if params.disturbance_source != "auto":
+        return params
+    return dc.replace(params, disturbance_source="acceleration" if estimator == "vio"
+                      else "velocity")
 
 
 class MpcReason(enum.IntEnum):
@@ -306,6 +324,9 @@ class LinearMpc(Controller):
     """
 
     def __init__(self, model: LinearModelParams, params: LinearMpcParams):
+        if params.disturbance_source == "auto":
+            raise ValueError("LinearMpc: disturbance_source 'auto' depends on the odometry; "
+                             "resolve it first (resolve_disturbance(params, estimator))")
         self._model, self._p = model, params
         self._curve = ThrustCurve(model.thrust_a, model.thrust_b)
         super().__init__(params.period, self._hover_command(0.0, 0.0))
@@ -430,7 +451,10 @@ class LinearMpc(Controller):
         # (state groups by plain int: pydrake converts a DiscreteStateIndex on every call)
         command, solution_group, failures, disturbance, status = self._groups
         previous = context.get_discrete_state().get_value(solution_group)[:NUM_INPUTS]
-        d_W = self._estimate_disturbance(context, v_EB)
+        if self._p.disturbance_source == "acceleration" and self._p.disturbance_gain > 0:
+            d_W = self._measure_disturbance(context, e[_E_A], v_EB, theta, phi, cos_yaw, sin_yaw)
+        else:
+            d_W = self._estimate_disturbance(context, v_EB)
         d_N = to_navigation(d_W, cos_yaw, sin_yaw)
         d_N_vector = np.array(d_N)
         v_N = to_navigation(r[_R_V], cos_yaw, sin_yaw)
@@ -473,6 +497,26 @@ class LinearMpc(Controller):
         error[2] = 0.0
         d_W = np.array([d + gain * e / dt for d, e in zip(d_W, error)])
         size = math.sqrt(d_W @ d_W)  # (np.linalg.norm's own formula, without its checks)
+        return (d_W * min(1.0, self._p.max_disturbance / size) if size > 0 else d_W).tolist()
+
+    def _measure_disturbance(self, context, a_W: list[float], v_W: list[float], theta: float,
+                             phi: float, cos_yaw: float, sin_yaw: float) -> list[float]:
+        """d_W moved by `acceleration_gain` toward the measured acceleration less L(11)'s
+        horizontal v_dot at the attitude, velocity and vertical acceleration now (g theta with
+        the thrust's g + a_z: a climb or descent's thrust change is not a disturbance), bounded
+        to `max_disturbance` (unchanged while a_EB is not finite)."""
+        d_W = context.get_discrete_state().get_value(self._groups[3]).tolist()[:3]
+        if not all(map(math.isfinite, a_W)):
+            return d_W
+        m = self._model
+        (v_x, v_y, _) = to_navigation(v_W, cos_yaw, sin_yaw)
+        (a_x, a_y, a_z) = to_navigation(a_W, cos_yaw, sin_yaw)
+        lift = GRAVITY + a_z   # the thrust's tilt term at the thrust flown, not at hover's
+        measured = to_navigation([a_x - (lift * theta - m.c_x * v_x),
+                                  a_y - (-lift * phi - m.c_y * v_y), 0.0], cos_yaw, -sin_yaw)
+        gain = self._p.acceleration_gain
+        d_W = np.array([d + gain * (z - d) for d, z in zip(d_W, measured)])
+        size = math.sqrt(d_W @ d_W)
         return (d_W * min(1.0, self._p.max_disturbance / size) if size > 0 else d_W).tolist()
 
     def _forget_prediction(self, context, discrete_state):
