@@ -502,18 +502,18 @@ class LinearMpc(Controller):
     def _measure_disturbance(self, context, a_W: list[float], v_W: list[float], theta: float,
                              phi: float, cos_yaw: float, sin_yaw: float) -> list[float]:
         """d_W moved by `acceleration_gain` toward the measured acceleration less L(11)'s
-        horizontal v_dot at the attitude, velocity and vertical acceleration now (g theta with
-        the thrust's g + a_z: a climb or descent's thrust change is not a disturbance), bounded
-        to `max_disturbance` (unchanged while a_EB is not finite)."""
+        horizontal v_dot at the attitude and velocity now, bounded to `max_disturbance`
+        (unchanged while a_EB is not finite). What the model's own g theta leaves unexplained
+        (a climb's larger thrust, a large tilt's tan) is learned too, as the velocity's
+        prediction error learns it: d is what makes L(11) predict the vehicle."""
         d_W = context.get_discrete_state().get_value(self._groups[3]).tolist()[:3]
         if not all(map(math.isfinite, a_W)):
             return d_W
         m = self._model
         (v_x, v_y, _) = to_navigation(v_W, cos_yaw, sin_yaw)
-        (a_x, a_y, a_z) = to_navigation(a_W, cos_yaw, sin_yaw)
-        lift = GRAVITY + a_z   # the thrust's tilt term at the thrust flown, not at hover's
-        measured = to_navigation([a_x - (lift * theta - m.c_x * v_x),
-                                  a_y - (-lift * phi - m.c_y * v_y), 0.0], cos_yaw, -sin_yaw)
+        (a_x, a_y, _) = to_navigation(a_W, cos_yaw, sin_yaw)
+        measured = to_navigation([a_x - (GRAVITY * theta - m.c_x * v_x),
+                                  a_y - (-GRAVITY * phi - m.c_y * v_y), 0.0], cos_yaw, -sin_yaw)
         gain = self._p.acceleration_gain
         d_W = np.array([d + gain * (z - d) for d, z in zip(d_W, measured)])
         size = math.sqrt(d_W @ d_W)
