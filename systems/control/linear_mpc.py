@@ -90,6 +90,7 @@ class LinearMpcParams:
     # attitude and velocity, low-passed by `acceleration_gain` per tick (a mocap or bank a_EB is
     # a differentiated position, +-10 m/s^2 of noise: not for this); `auto`, acceleration on VIO
     # odometry and velocity on any other (resolved by the stack builder, `resolve_disturbance`).
+    # `disturbance_gain` 0 turns the estimate off whatever the source (the paper's MPC).
     disturbance_source: str = choice("velocity", "acceleration", "auto")
     acceleration_gain: float = bounded(0.2, 0.0, 1.0)
     # Safety extension (not in the paper): the reference position is taken at most this far
