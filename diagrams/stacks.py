@@ -12,6 +12,7 @@ from typing import Callable
 
 import numpy as np
 
+from alight.diagrams.onboard.controllers import resolve_force_disturbance
 from alight.diagrams.onboard.estimation import scenario_odometry
 from alight.diagrams.onboard.faults import command_filter, faulty_odometry
 from alight.diagrams.onboard.landing import add_landing_onboard
@@ -64,9 +65,17 @@ def _landing(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
                         parts.finished(scenario.scoring.settle_time), {"trackers": []}, parts)
 
 
+def _control_manager(onboard):
+    """The scenario's control manager with its force controllers resolved for its odometry
+    (`resolve_force_disturbance`)."""
+    manager = onboard.control_manager
+    return dc.replace(manager, controller_params=resolve_force_disturbance(
+        manager.controller_params, onboard.estimator))
+
+
 def _landing_managed(builder, scenario: Scenario, vehicle, odometry) -> OnboardStack:
     onboard = scenario.onboard
-    parts = add_landing_managed(builder, vehicle, scenario.mission, onboard.control_manager,
+    parts = add_landing_managed(builder, vehicle, scenario.mission, _control_manager(onboard),
                                 onboard.controller, _linear_mpc(onboard), odometry,
                                 onboard.perception, scenario.camera_blackouts, onboard.touchdown)
     return OnboardStack(parts.loggers, scenario.simulator.max_duration,

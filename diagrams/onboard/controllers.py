@@ -10,7 +10,7 @@ from alight.systems.control.linear_mpc import LinearMpc, LinearMpcParams
 from alight.systems.control.mpc_force import MpcForceController, MpcForceParams
 from alight.systems.control.se3 import Se3Controller, Se3Params
 from alight.systems.control.so3 import So3Params
-from alight.systems.params import bounded, load_params, param_file
+from alight.systems.params import bounded, choice, load_params, param_file
 
 CONTROLLERS = ("se3", "mpc", "failsafe", "linear_mpc")
 
@@ -19,6 +19,12 @@ CONTROLLERS = ("se3", "mpc", "failsafe", "linear_mpc")
 class ControllersConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")  # 100 Hz (DESIGN.md)
     max_prediction: float = bounded(0.1, 0.0, 1.0, "s")  # estimate latency compensated at most
+    # The force controllers' external force, beyond M(35): also measured from the estimate's
+    # acceleration (`acceleration`, low-passed by `acceleration_gain` per tick), or learned by the
+    # integrators alone (`integrators`, M); `auto`: `acceleration` on the VIO's odometry (its
+    # a_EB is the IMU's), the integrators on any other (`resolve_force_disturbance`).
+    disturbance_source: str = choice("auto", "integrators", "acceleration")
+    acceleration_gain: float = bounded(0.05, 0.0, 1.0)
     vehicle: VehicleModel = dc.field(default_factory=VehicleModel)
     so3: So3Params = dc.field(default_factory=So3Params)
     disturbance_limits: DisturbanceLimits = dc.field(default_factory=DisturbanceLimits)
@@ -36,15 +42,30 @@ def load_controllers_config(filename: str = "controllers.yaml") -> ControllersCo
     return load_params(ControllersConfig, model_path(filename))
 
 
+def resolve_force_disturbance(config: ControllersConfig, estimator: str) -> ControllersConfig:
+    """`config` with `disturbance_source: auto` made `acceleration` on the VIO's odometry and
+    `integrators` on any other (as the landing MPC's `resolve_disturbance`)."""
+    if config.disturbance_source != "auto":
+        return config
+    return dc.replace(config, disturbance_source="acceleration" if estimator == "vio"
+                      else "integrators")
+
+
+def _acceleration_gain(config: ControllersConfig) -> float:
+    """The measured disturbance's gain; an unresolved `auto` (no odometry named: the flight
+    tests and benches on mocap) flies the integrators alone, as on mocap."""
+    return config.acceleration_gain if config.disturbance_source == "acceleration" else 0.0
+
+
 def make_controller(name: str, config: ControllersConfig):
     """The LeafSystem of controller `name` (one of CONTROLLERS)."""
     if name == "se3":
         return Se3Controller(config.vehicle, config.so3, config.se3, config.disturbance_limits,
-                             config.period, config.max_prediction)
+                             config.period, config.max_prediction, _acceleration_gain(config))
     if name == "mpc":
         return MpcForceController(config.vehicle, config.so3, config.mpc,
                                   config.disturbance_limits, config.period,
-                                  config.max_prediction)
+                                  config.max_prediction, _acceleration_gain(config))
     if name == "failsafe":
         return FailsafeController(config.vehicle, config.failsafe, config.period)
     if name == "linear_mpc":

@@ -68,6 +68,16 @@ def integrate(state: np.ndarray, e_p: np.ndarray, eta: float, dt: float,
     return new
 
 
+def measured_force(m_e: float, a_EB: np.ndarray, thrust_force: float, R_EB: np.ndarray
+                   ) -> np.ndarray:
+    """The horizontal external force [N, in E, z zero] the measured acceleration shows, beyond
+    M(35) (the flight stack's counterpart of the landing MPC's IMU disturbance): m_e a_EB - f(T) b3
+    (gravity has no horizontal part). With the IMU's acceleration a_EB = R_EB f_IMU - g e3 it is
+    m_e R_EB f_IMU - f(T) b3: drag, wind and thrust-model error, seen within a tick."""
+    force = m_e * np.asarray(a_EB, float) - thrust_force * np.asarray(R_EB)[:, 2]
+    return np.array([force[0], force[1], 0.0])
+
+
 def forces(state: np.ndarray, eta: float) -> tuple[np.ndarray, np.ndarray]:
     """d_w and d_b = H_N * body_sum as 3-vectors in W with zero z (the o [1, 1, 0] of M(38))."""
     d_w = np.append(DISTURBANCE.get(state, "world"), 0.0)

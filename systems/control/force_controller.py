@@ -17,7 +17,11 @@ The controller role (alight.systems.control.controller): only the active control
 activation it starts from `last_command` (M Sec. 7.2): its thrust is the start of a thrust ramp
 (rate `thrust_ramp_rate`) toward the computed thrust, so the hand-over (or the take-off from the
 ground, where the last command is zero thrust) has no thrust step; when the last command was
-flying, its apparent mass M(34) on the current tilt seeds the mass estimate. The disturbance
+flying, its apparent mass M(34) on the current tilt seeds the mass estimate. With
+`acceleration_gain` > 0 (beyond M, on odometry whose acceleration is measured: the VIO's IMU) the
+external horizontal force m_e a - f(T) b3 is also measured every tick, low-passed and compensated
+with the integrators' (`disturbance.measured_force`): drag and wind are learned within a fraction
+of a second instead of through a position error. The disturbance
 integrators start at zero, or, when the optional input `last_disturbance` is connected (the control
 manager forwards the previous controller's `disturbance_estimate`) and finite, from the previous
 controller's estimates; they are frozen while the ramp lasts, and while the optional input
@@ -90,7 +94,7 @@ def advance_reference(reference: np.ndarray, dt: float) -> np.ndarray:
 
 
 _INTERNAL = VectorLayout("force_controller_state", [
-    ("ramping", 1), ("ramp_thrust", 1), ("disturbance", DISTURBANCE.size)])
+    ("ramping", 1), ("ramp_thrust", 1), ("disturbance", DISTURBANCE.size), ("measured", 2)])
 
 
 class ForceController(Controller):
@@ -110,9 +114,10 @@ class ForceController(Controller):
 
     def __init__(self, vehicle: VehicleModel, so3: So3Params, gains: DisturbanceGains,
                  limits: DisturbanceLimits, period: float, extra_state=None,
-                 max_prediction: float = 0.1):
+                 max_prediction: float = 0.1, acceleration_gain: float = 0.0):
         super().__init__(period, level_command(0.0, 0.0, 0.0, 0.0))
         self._max_prediction = max_prediction
+        self._acceleration_gain = acceleration_gain
         self._vehicle, self._so3, self._gains, self._limits = vehicle, so3, gains, limits
         self._curve = vehicle.curve
         self._fc_attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
@@ -154,6 +159,8 @@ class ForceController(Controller):
         x = discrete_state.get_value(self._internal).copy()
         x[_INTERNAL.slice("disturbance")] = disturbance.reexpress(
             x[_INTERNAL.slice("disturbance")], R_OldNew)
+        x[_INTERNAL.slice("measured")] = (R_OldNew.T @ np.append(
+            x[_INTERNAL.slice("measured")], 0.0))[:2]
         discrete_state.set_value(self._internal, x)
 
     def _activate(self, context, discrete_state, last, estimate) -> None:
@@ -175,7 +182,8 @@ class ForceController(Controller):
                 STATE_ESTIMATE.get(estimate, "heading"), self._limits)
             state = state if handed is None else handed
         discrete_state.set_value(self._internal, _INTERNAL.pack(ramping=1.0, ramp_thrust=thrust,
-                                                                disturbance=state))
+                                                                disturbance=state,
+                                                                measured=np.zeros(2)))
 
     def _compute(self, context, discrete_state, x, estimate, reference) -> None:
         now = context.get_time()
@@ -187,11 +195,14 @@ class ForceController(Controller):
         e_v = v - REFERENCE.get(reference, "v")
         ramping = x[_INTERNAL.slice("ramping")][0] > 0.5
         state = x[_INTERNAL.slice("disturbance")]
-        if not (ramping or self._reference_held(context)):
+        learning = not (ramping or self._reference_held(context))
+        if learning:
             state = disturbance.integrate(state, e_p, eta, self._period,
                                           self._disturbance_gains(context), self._limits)
         m_e = disturbance.estimated_mass(self._vehicle.mass, state)
         d_w, d_b = disturbance.forces(state, eta)
+        d_m = self._measured_disturbance(context, x, estimate, m_e, R, learning)
+        d_w = d_w + d_m   # the compensated force: integrators M(35) + the measured one
         a_fb, reason, solver_status = self._feedback_acceleration(
             context, discrete_state, e_p, e_v, reference)
         if reason not in VALID_REASONS:
@@ -227,6 +238,25 @@ class ForceController(Controller):
             self._vehicle.mass, state, eta))
         discrete_state.set_value(self._internal, x)
         discrete_state.set_value(self._status, status_vector(reason, solver_status))
+
+    def _measured_disturbance(self, context, x, estimate, m_e: float, R: np.ndarray,
+                              learning: bool) -> np.ndarray:
+        """The low-passed external force measured from the estimate's acceleration (gain
+        `acceleration_gain` per tick; 0: off, M(35) alone), kept in `x`; frozen as the
+        integrators are (thrust ramp, admittance hold), and while the estimate's acceleration or
+        the last command is not finite. [N, in E, z zero]"""
+        measured = x[_INTERNAL.slice("measured")]
+        if self._acceleration_gain <= 0.0:
+            return np.zeros(3)
+        a_EB = STATE_ESTIMATE.get(estimate, "a_EB")
+        thrust = float(FC_COMMAND.get(context.get_discrete_state(self._command).get_value(),
+                                      "thrust"))
+        if learning and np.all(np.isfinite(a_EB)) and np.isfinite(thrust):
+            force = disturbance.measured_force(m_e, a_EB, float(self._curve.force(thrust)), R)
+            measured = np.clip(measured + self._acceleration_gain * (force[:2] - measured),
+                               -self._limits.world, self._limits.world)
+            x[_INTERNAL.slice("measured")] = measured
+        return np.append(measured, 0.0)
 
     def _reference_held(self, context) -> bool:
         """The active tracker holds the reference back by admittance (M Sec. 4.2)."""

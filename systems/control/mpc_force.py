@@ -201,9 +201,11 @@ class MpcForceController(ForceController):
     and the count of consecutive failed solves (1)."""
 
     def __init__(self, vehicle: VehicleModel, so3: So3Params, params: MpcForceParams,
-                 limits: DisturbanceLimits, period: float = 0.01, max_prediction: float = 0.1):
+                 limits: DisturbanceLimits, period: float = 0.01, max_prediction: float = 0.1,
+                 acceleration_gain: float = 0.0):
         super().__init__(vehicle, so3, params.disturbance, limits, period,
-                         extra_state=np.zeros(4), max_prediction=max_prediction)
+                         extra_state=np.zeros(4), max_prediction=max_prediction,
+                         acceleration_gain=acceleration_gain)
         self._params = params
         self.qp = MpcForceQp(params, period)
 

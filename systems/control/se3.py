@@ -54,9 +54,11 @@ class Se3Controller(ForceController):
     `gain_group_names()`; unconnected, non-finite or out of range: the YAML's `gains`)."""
 
     def __init__(self, vehicle: VehicleModel, so3: So3Params, params: Se3Params,
-                 limits: DisturbanceLimits, period: float = 0.01, max_prediction: float = 0.1):
+                 limits: DisturbanceLimits, period: float = 0.01, max_prediction: float = 0.1,
+                 acceleration_gain: float = 0.0):
         super().__init__(vehicle, so3, params.active.disturbance, limits, period,
-                         max_prediction=max_prediction)
+                         max_prediction=max_prediction,
+                         acceleration_gain=acceleration_gain)
         self._groups = [getattr(params.groups, name) for name in gain_group_names()]
         self._gains_k = [(np.asarray(g.k_p, dtype=float), np.asarray(g.k_v, dtype=float))
                          for g in self._groups]
