@@ -21,9 +21,10 @@ class ControllersConfig:
     max_prediction: float = bounded(0.1, 0.0, 1.0, "s")  # estimate latency compensated at most
     # The force controllers' external force, beyond M(35): also measured from the estimate's
     # acceleration (`acceleration`, low-passed by `acceleration_gain` per tick), or learned by the
-    # integrators alone (`integrators`, M); `auto`: `acceleration` on the VIO's odometry (its
-    # a_EB is the IMU's), the integrators on any other (`resolve_force_disturbance`).
-    disturbance_source: str = choice("auto", "integrators", "acceleration")
+    # integrators alone (`integrators`, M: the default, models/controllers.yaml says why); `auto`:
+    # `acceleration` on the VIO's odometry (its a_EB is the IMU's), the integrators on any other
+    # (`resolve_force_disturbance`).
+    disturbance_source: str = choice("integrators", "auto", "acceleration")
     acceleration_gain: float = bounded(0.05, 0.0, 1.0)
     vehicle: VehicleModel = dc.field(default_factory=VehicleModel)
     so3: So3Params = dc.field(default_factory=So3Params)
