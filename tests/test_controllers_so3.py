@@ -215,6 +215,20 @@ def test_controller_tilts_by_the_flight_controller_attitude_with_the_estimate_he
     np.testing.assert_allclose(w_D, 0.0, atol=1e-6)
 
 
+def _active_at(dut, p_ref, thrust: float):
+    """A context of the force controller `dut`, active on a hover reference at `p_ref`, taking
+    over from a level rates command at `thrust`."""
+    from alight.systems.boundary import FC_COMMAND, REFERENCE, CommandMode
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
+        stamp=0.0, p=p_ref, v=0.0, a=0.0, j=0.0, heading=0.0, heading_rate=0.0))
+    dut.GetInputPort("active").FixValue(context, [1.0])
+    dut.GetInputPort("last_command").FixValue(context, FC_COMMAND.pack(
+        stamp=0.0, mode=CommandMode.RATES_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
+        thrust=thrust, arm=1.0))
+    return context
+
+
 @pytest.mark.parametrize("name", ["se3", "mpc"])
 def test_integrators_hold_while_the_tracker_reports_admittance(name):
     """M Sec. 4.2: a vehicle held down 0.5 m below its reference (the landoff tracker's
@@ -230,15 +244,9 @@ def test_integrators_hold_while_the_tracker_reports_admittance(name):
     dut = make_controller(name, config)
 
     def mass_after(reason, ticks=200):
-        context = dut.CreateDefaultContext()
+        context = _active_at(dut, [0, 0, 0.7], thrust=0.0)
         dut.GetInputPort("state_estimate").FixValue(context,
                                                     STATE_ESTIMATE.vector(p_EB=[0, 0, 0.2]))
-        dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
-            stamp=0.0, p=[0, 0, 0.7], v=0.0, a=0.0, j=0.0, heading=0.0, heading_rate=0.0))
-        dut.GetInputPort("active").FixValue(context, [1.0])
-        dut.GetInputPort("last_command").FixValue(context, FC_COMMAND.pack(
-            stamp=0.0, mode=CommandMode.RATES_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
-            thrust=0.0, arm=1.0))
         dut.GetInputPort("tracker_status").FixValue(context, TRACKER_STATUS.pack(
             valid=1.0, reason=reason, solver_status=0.0))
         for _ in range(ticks):
@@ -268,14 +276,8 @@ def test_the_measured_acceleration_gives_the_side_force_within_a_second(name):
     def desired_roll(source):
         config = dc.replace(load_controllers_config(), disturbance_source=source)
         dut = make_controller(name, config)
-        context = dut.CreateDefaultContext()
+        context = _active_at(dut, [0, 0, 2.0], thrust=0.66)
         roll = np.radians(10.0)
-        dut.GetInputPort("reference").FixValue(context, REFERENCE.pack(
-            stamp=0.0, p=[0, 0, 2.0], v=0.0, a=0.0, j=0.0, heading=0.0, heading_rate=0.0))
-        dut.GetInputPort("active").FixValue(context, [1.0])
-        dut.GetInputPort("last_command").FixValue(context, FC_COMMAND.pack(
-            stamp=0.0, mode=CommandMode.RATES_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
-            thrust=0.66, arm=1.0))
         for _ in range(60):
             context.SetTime(context.get_time() + dut.period)
             dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(
