@@ -236,8 +236,7 @@ def test_integrators_hold_while_the_tracker_reports_admittance(name):
     stays; with the tracker taking off it learns the sag (before the hold it wound the thrust to
     its limit on a tethered take-off, docs/benchmarks.md)."""
     from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
-    from alight.systems.boundary import (ADMITTANCE_HOLD, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
-                                         TRACKER_STATUS, CommandMode)
+    from alight.systems.boundary import ADMITTANCE_HOLD, STATE_ESTIMATE, TRACKER_STATUS
     from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
     from alight.systems.tracking.chi_tracker import ChiReason
     config = load_controllers_config()
@@ -270,7 +269,7 @@ def test_the_measured_acceleration_gives_the_side_force_within_a_second(name):
     moves them at zero position error and it commands the vehicle level, to be blown away
     before the position error teaches them."""
     from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
-    from alight.systems.boundary import FC_COMMAND, REFERENCE, STATE_ESTIMATE, CommandMode
+    from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE
     from alight.systems.rotations import rotation_matrix
 
     def desired_roll(source):
