@@ -2,7 +2,7 @@
 import dataclasses as dc
 
 from alight.models import model_path
-from alight.systems.control.disturbance import DisturbanceLimits
+from alight.systems.control.disturbance import DisturbanceLimits, resolve_auto_source
 from alight.systems.control.failsafe import FailsafeController, FailsafeParams
 from alight.systems.control.force_controller import VehicleModel
 from alight.systems.control.linear_model import LinearModelParams
@@ -46,10 +46,7 @@ def load_controllers_config(filename: str = "controllers.yaml") -> ControllersCo
 def resolve_force_disturbance(config: ControllersConfig, estimator: str) -> ControllersConfig:
     """`config` with `disturbance_source: auto` made `acceleration` on the VIO's odometry and
     `integrators` on any other (as the landing MPC's `resolve_disturbance`)."""
-    if config.disturbance_source != "auto":
-        return config
-    return dc.replace(config, disturbance_source="acceleration" if estimator == "vio"
-                      else "integrators")
+    return resolve_auto_source(config, estimator, otherwise="integrators")
 
 
 def _acceleration_gain(config: ControllersConfig) -> float:

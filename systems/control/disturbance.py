@@ -70,12 +70,21 @@ def integrate(state: np.ndarray, e_p: np.ndarray, eta: float, dt: float,
 
 def measured_force(m_e: float, a_EB: np.ndarray, thrust_force: float, R_EB: np.ndarray
                    ) -> np.ndarray:
-    """The horizontal external force [N, in E, z zero] the measured acceleration shows, beyond
+    """The horizontal external force (x, y) [N, in E] the measured acceleration shows, beyond
     M(35) (the flight stack's counterpart of the landing MPC's IMU disturbance): m_e a_EB - f(T) b3
     (gravity has no horizontal part). With the IMU's acceleration a_EB = R_EB f_IMU - g e3 it is
     m_e R_EB f_IMU - f(T) b3: drag, wind and thrust-model error, seen within a tick."""
-    force = m_e * np.asarray(a_EB, float) - thrust_force * np.asarray(R_EB)[:, 2]
-    return np.array([force[0], force[1], 0.0])
+    return m_e * np.asarray(a_EB, float)[:2] - thrust_force * np.asarray(R_EB)[:2, 2]
+
+
+def resolve_auto_source(params, estimator: str, otherwise: str):
+    """`params` (a dataclass with `disturbance_source`) with `auto` made `acceleration` on the
+    VIO's odometry (its a_EB is the IMU's, measured; a mocap or bank a_EB is a differentiated
+    position) and `otherwise` on any other; unchanged when not `auto`."""
+    if params.disturbance_source != "auto":
+        return params
+    return dc.replace(params, disturbance_source="acceleration" if estimator == "vio"
+                      else otherwise)
 
 
 def forces(state: np.ndarray, eta: float) -> tuple[np.ndarray, np.ndarray]:

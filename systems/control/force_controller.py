@@ -253,7 +253,7 @@ class ForceController(Controller):
                                       "thrust"))
         if learning and np.all(np.isfinite(a_EB)) and np.isfinite(thrust):
             force = disturbance.measured_force(m_e, a_EB, float(self._curve.force(thrust)), R)
-            measured = np.clip(measured + self._acceleration_gain * (force[:2] - measured),
+            measured = np.clip(measured + self._acceleration_gain * (force - measured),
                                -self._limits.world, self._limits.world)
             x[_INTERNAL.slice("measured")] = measured
         return np.append(measured, 0.0)

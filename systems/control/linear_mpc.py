@@ -38,6 +38,7 @@ from pydrake.solvers import MathematicalProgram, OsqpSolver, SolverOptions
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
                                      STATE_ESTIMATE, CommandMode, VectorLayout)
 from alight.systems.control.controller import Controller
+from alight.systems.control.disturbance import resolve_auto_source
 from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
                                                  LinearModelParams, continuous_model, discretize,
                                                  euler_angles, euler_rates, to_navigation)
@@ -128,10 +129,7 @@ MPC_DISTURBANCE = VectorLayout("mpc_disturbance", [("d_W", 3)])  # the `disturba
 def resolve_disturbance(params: LinearMpcParams, estimator: str) -> LinearMpcParams:
     """`params` with `disturbance_source: auto` made `acceleration` on the VIO's odometry (its
     a_EB is measured) and `velocity` on any other."""
-    if params.disturbance_source != "auto":
-        return params
-    return dc.replace(params, disturbance_source="acceleration" if estimator == "vio"
-                      else "velocity")
+    return resolve_auto_source(params, estimator, otherwise="velocity")
 
 
 class MpcReason(enum.IntEnum):
