@@ -15,8 +15,9 @@ and in holes. Two sources (DESIGN.md "Simulation fidelity"), timed like the down
   frame (out of view, dropped, lost) comes back under a new id, so the estimator never gets free
   re-identification. A model of the front end's output, not of the scene's points (issue 20):
   - occlusion: a landmark is not observed when the segment from the camera centre to it crosses a
-    box of the map (slab test, visible candidates x boxes; its own box is left out, since a point
-    on a face is hidden by its own box only when that face turns away), nor when the outward
+    box of the map (slab test on the candidate x box pairs that the box's image rectangle and
+    nearest corner leave possible; its own box is left out, since a point on a face is hidden by
+    its own box only when that face turns away), nor when the outward
     normal of its face points away from the camera (back face; the ground's normal is +z);
   - outlier matches: each tracked keypoint jumps with probability `outlier_probability` to a
     wrong pixel (`outlier_error` px away, uniform, in a uniform direction) keeping its track id,
@@ -107,32 +108,51 @@ def _noisy_depth(rng, z: np.ndarray, params: RgbdCameraParams, holes: np.ndarray
 GRID = (8, 6)  # feature bucketing cells (columns, rows)
 
 
-def _slab(c: np.ndarray, d: np.ndarray, boxes: np.ndarray):
-    """Ray c + t d (c (3,), d (N, 3)) against boxes (M, >= 5: x0, y0, x1, y1, height; standing on
-    z = 0): entry and exit parameters (N, M); the ray meets a box where exit >= max(entry, 0)."""
-    lo = np.column_stack([boxes[:, :2], np.zeros(len(boxes))])
-    hi = np.column_stack([boxes[:, 2:4], boxes[:, 4]])
+def _bounds(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The lower and upper corners (M, 3) of boxes (M, >= 5: x0, y0, x1, y1, height; standing on
+    z = 0)."""
+    return (np.column_stack([boxes[:, :2], np.zeros(len(boxes))]),
+            np.column_stack([boxes[:, 2:4], boxes[:, 4]]))
+
+
+def _slab(c: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """Rays c + t d (c (3,), d (..., 3)) against the boxes from corner lo to corner hi (..., 3,
+    broadcast with d): entry and exit parameters (...); a ray meets a box where
+    exit >= max(entry, 0)."""
     d = np.where(np.abs(d) < 1e-12, 1e-12, d)
     entry, exit_ = None, None
-    for k in range(3):  # per axis on (N, M) arrays: faster than a reduction over a short axis
-        inv = 1.0 / d[:, k:k + 1]
-        t1, t2 = (lo[:, k] - c[k]) * inv, (hi[:, k] - c[k]) * inv
+    for k in range(3):  # per axis: faster than a reduction over a short axis
+        inv = 1.0 / d[..., k]
+        t1, t2 = (lo[..., k] - c[k]) * inv, (hi[..., k] - c[k]) * inv
         near, far = np.minimum(t1, t2), np.maximum(t1, t2)
         entry = near if entry is None else np.maximum(entry, near)
         exit_ = far if exit_ is None else np.minimum(exit_, far)
     return entry, exit_
 
 
-def occluded(c: np.ndarray, p: np.ndarray, boxes: np.ndarray, own: np.ndarray) -> np.ndarray:
+def occluded(c: np.ndarray, p: np.ndarray, boxes: np.ndarray, own: np.ndarray,
+             pairs: np.ndarray = None) -> np.ndarray:
     """(N,) whether the segment from c (3,) to each point p (N, 3) crosses a box before reaching
-    the point; a point's own box (`own` (N,), -1: none) is left out."""
+    the point; a point's own box (`own` (N,), -1: none) is left out, and so are the point-box
+    pairs that `pairs` (N, M) bool (default: all pairs) leaves out."""
+    hidden = np.zeros(len(p), bool)
     if not len(p) or not len(boxes):
-        return np.zeros(len(p), bool)
-    entry, exit_ = _slab(c, p - c, boxes)
-    hit = (exit_ >= np.maximum(entry, 0.0)) & (entry < 1.0 - 1e-9)
-    mine = own >= 0
-    hit[np.flatnonzero(mine), own[mine]] = False
-    return hit.any(axis=1)
+        return hidden
+    # box by box (the camera's pairs are the transpose of (M, N) rows)
+    j, i = np.nonzero(np.ones((len(boxes), len(p)), bool) if pairs is None else pairs.T)
+    other = j != own[i]
+    i, j = i[other], j[other]
+    lo, hi = _bounds(boxes)
+    entry, exit_ = _slab(c, (p - c).take(i, axis=0), lo.take(j, axis=0), hi.take(j, axis=0))
+    hidden[i[(exit_ >= np.maximum(entry, 0.0)) & (entry < 1.0 - 1e-9)]] = True
+    return hidden
+
+
+def box_corners(boxes: np.ndarray) -> np.ndarray:
+    """The 8 corners (M, 8, 3) of boxes (M, >= 5: x0, y0, x1, y1, height; standing on z = 0)."""
+    corners = np.stack(np.meshgrid([0, 2], [1, 3], [0, 1], indexing="ij"), -1).reshape(-1, 3)
+    return np.stack([boxes[:, corners[:, 0]], boxes[:, corners[:, 1]],
+                     boxes[:, 4:5] * corners[:, 2]], axis=-1)
 
 
 def ray_depth(c: np.ndarray, d: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -141,10 +161,22 @@ def ray_depth(c: np.ndarray, d: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore"):
         t = np.where(d[:, 2] < 0, -c[2] / d[:, 2], np.inf)
     if len(boxes) and len(d):
-        entry, exit_ = _slab(c, d, boxes)
+        entry, exit_ = _slab(c, d[:, None], *_bounds(boxes))
         t_box = np.where(exit_ >= np.maximum(entry, 0.0), np.maximum(entry, 0.0), np.inf)
         t = np.minimum(t, t_box.min(axis=1))
     return t
+
+
+@dc.dataclass(frozen=True)
+class Tracks:
+    """The camera's tracks: {landmark index: track id} of the last frame, and the next free track
+    id. A value, never changed once made: Drake's copies of the state (copy.deepcopy, at every
+    update of the camera) share it."""
+    ids: dict = dc.field(default_factory=dict)
+    next_id: int = 0
+
+    def __deepcopy__(self, memo) -> "Tracks":
+        return self
 
 
 class GeometricRgbdCamera(TimedCamera):
@@ -162,25 +194,29 @@ class GeometricRgbdCamera(TimedCamera):
         self._body = int(body_index)
         self.landmarks = landmarks if landmarks is not None else make_landmark_map(
             params.landmarks)
-        # Homogeneous landmark coordinates (4, N), for one product per frame.
-        self._p_WL_h = np.vstack([self.landmarks.p_WL.T, np.ones(len(self.landmarks.p_WL))])
         self._boxes = self.landmarks.boxes[:, :5]
         self._focal, self._center = self._lens.K[[0, 1], [0, 1]], self._lens.K[:2, 2]
         # A map along a road holds 10^5 landmarks: each frame projects only those of the cells
         # that reach into the view frustum (`_boxes_in_view`).
         self._grid = LandmarkGrid(self.landmarks.p_WL, cell=params.max_range / 4)
+        self._box_corners, self._cell_corners = box_corners(self._boxes), box_corners(
+            self._grid.boxes)
+        # The landmarks in the grid's order (`LandmarkGrid.order`), so that a frame gathers those
+        # of a few cells from close together; homogeneous coordinates (N, 4) for one product.
+        m, order = self.landmarks, self._grid.order
+        self._p_WL_h = np.column_stack([m.p_WL[order], np.ones(len(m.p_WL))])
+        self._p_WL, self._n_WL, self._box_of = m.p_WL[order], m.n_WL[order], m.box[order]
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(
             [RigidTransform()]))
         self._seed = self.DeclareVectorInputPort("noise_seed", 1)
-        # {landmark index: track id} of the last frame, and the next free track id
-        self._tracks = self.DeclareAbstractState(AbstractValue.Make(({}, 0)))
+        self._tracks = self.DeclareAbstractState(AbstractValue.Make(Tracks()))
 
     def _on_exposure(self, context, state):
-        tracks, next_id = context.get_abstract_state(self._tracks).get_value()
+        tracks = context.get_abstract_state(self._tracks).get_value()
         rng = np.random.default_rng(int(self._seed.Eval(context)[0] * 2 ** 31))
-        frame, tracks, next_id = self._observe(context, rng, tracks, next_id)
+        frame, ids, next_id = self._observe(context, rng, tracks.ids, tracks.next_id)
         self._queue(context, state, frame)
-        state.get_mutable_abstract_state(self._tracks).set_value((tracks, next_id))
+        state.get_mutable_abstract_state(self._tracks).set_value(Tracks(ids, next_id))
 
     def _observe(self, context, rng, tracks: dict, next_id: int):
         X_WC = self._poses.Eval(context)[self._body] @ self._X_BC
@@ -195,7 +231,9 @@ class GeometricRgbdCamera(TimedCamera):
             return None, {}, next_id, np.zeros(0, bool)
         visible, uv, z = self._visible(X_WC)
         # Rows of `visible` (its uv, z): tracked in the last frame or not.
-        was_tracked = np.isin(visible, np.fromiter(tracks, int, len(tracks)))
+        was_tracked = np.zeros(len(self._p_WL), bool)
+        was_tracked[np.fromiter(tracks, int, len(tracks))] = True
+        was_tracked = was_tracked[visible]
         tracked = np.flatnonzero(was_tracked)
         # One draw per tracked landmark, in order (as many draws as one call each).
         kept = tracked[rng.random(len(tracked)) >= p.track_loss]
@@ -207,7 +245,7 @@ class GeometricRgbdCamera(TimedCamera):
             new_tracks[i], next_id = next_id, next_id + 1
         n = len(selected)
         ids = np.array([new_tracks[i] for i in selected.tolist()], np.int64)
-        keypoints = self._lens.project(self._points_C(X_WC, selected)) \
+        keypoints = self._lens.project(self._points_C(X_WC, self._grid.slot[selected])) \
             + p.keypoint_noise_std * rng.standard_normal((n, 2)) if n else np.zeros((0, 2))
         # Outlier matches: a tracked keypoint (not a fresh detection) slides to a wrong pixel.
         jump = (rng.random(n) < p.outlier_probability) & (np.arange(n) < len(kept))
@@ -254,20 +292,16 @@ class GeometricRgbdCamera(TimedCamera):
         rank = count[cell] + before
         return fresh[np.argsort(rank, kind="stable")]
 
-    def _points_C(self, X_WC: RigidTransform, indices=None) -> np.ndarray:
-        """Landmarks (all, or those of `indices`) in the camera frame C."""
-        p_WL_h = self._p_WL_h if indices is None else self._p_WL_h[:, indices]
-        return (X_WC.inverse().GetAsMatrix34() @ p_WL_h).T
+    def _points_C(self, X_WC: RigidTransform, at: np.ndarray) -> np.ndarray:
+        """The landmarks at positions `at` of the grid's order in the camera frame C (N, 3)."""
+        return (X_WC.inverse().GetAsMatrix34() @ self._p_WL_h.take(at, axis=0).T).T
 
-    def _boxes_in_view(self, X_WC: RigidTransform, boxes: np.ndarray = None) -> np.ndarray:
-        """Rows of the boxes (default: the map's) not wholly outside one plane of the view frustum
-        (behind the camera, beyond `max_range`, or beyond one image edge), in increasing order."""
-        b = self._boxes if boxes is None else boxes
-        if not len(b):
+    def _boxes_in_view(self, X_WC: RigidTransform, p_W: np.ndarray) -> np.ndarray:
+        """Rows of the boxes with corners p_W (M, 8, 3) (`box_corners`) not wholly outside one
+        plane of the view frustum (behind the camera, beyond `max_range`, or beyond one image
+        edge), in increasing order."""
+        if not len(p_W):
             return np.zeros(0, int)
-        corners = np.stack(np.meshgrid([0, 2], [1, 3], [0, 1], indexing="ij"), -1).reshape(-1, 3)
-        p_W = np.stack([b[:, corners[:, 0]], b[:, corners[:, 1]],
-                        b[:, 4:5] * corners[:, 2]], axis=-1)            # (M, 8, 3)
         X_CW = X_WC.inverse()
         p_C = p_W @ X_CW.rotation().matrix().T + X_CW.translation()
         x, y, z = p_C[..., 0], p_C[..., 1], p_C[..., 2]
@@ -290,28 +324,54 @@ class GeometricRgbdCamera(TimedCamera):
         increasing order, with their noise-free pixels (N, 2) and ranges (z in C) (N,) in the
         same order. Only the landmarks of the grid cells that reach into the view are projected
         (a map along a road holds 10^5 of them)."""
-        p = self._params
         c = X_WC.translation()
-        near = self._grid.members(self._boxes_in_view(X_WC, self._grid.boxes))
-        p_CL = self._points_C(X_WC, near)
-        z = p_CL[:, 2]
-        ahead = (z > 0.1) & (z < p.max_range)
-        near, p_CL, z = near[ahead], p_CL[ahead], z[ahead]
-        uv = p_CL[:, :2] / z[:, None] * self._focal + self._center
-        keep = self._lens.in_image(uv, p.border_margin)
-        order = np.argsort(near[keep])
-        candidates, uv, z = near[keep][order], uv[keep][order], z[keep][order]
-        m = self.landmarks
-        p_WL = m.p_WL[candidates]
-        front = np.einsum("ij,ij->i", m.n_WL[candidates], c - p_WL) > 0
-        candidates, p_WL, uv, z = candidates[front], p_WL[front], uv[front], z[front]
+        at, uv, z = self._in_image(X_WC)
+        p_WL = self._p_WL.take(at, axis=0)
+        rows = np.flatnonzero(np.einsum("ij,ij->i", self._n_WL.take(at, axis=0), c - p_WL) > 0)
         # Only boxes that reach into the view frustum can hide a point in it.
-        in_view = self._boxes_in_view(X_WC)
-        own = np.full(len(candidates), -1)
-        mine = np.isin(m.box[candidates], in_view)
-        own[mine] = np.searchsorted(in_view, m.box[candidates][mine])
-        seen = ~occluded(c, p_WL, self._boxes[in_view], own)
-        return candidates[seen], uv[seen], z[seen]
+        in_view = self._boxes_in_view(X_WC, self._box_corners)
+        box_row = np.full(len(self._boxes) + 1, -1)  # a box's row in in_view (-1, the last: none)
+        box_row[in_view] = np.arange(len(in_view))
+        rows = rows[~occluded(c, p_WL.take(rows, axis=0), self._boxes[in_view],
+                              box_row[self._box_of[at[rows]]],
+                              self._may_hide(X_WC, in_view, uv.take(rows, axis=0), z[rows]))]
+        # Increasing order: each cell's landmarks are an increasing run, a stable sort merges them.
+        index = self._grid.order[at[rows]]
+        order = np.argsort(index, kind="stable")
+        return index[order], uv.take(rows[order], axis=0), z[rows[order]]
+
+    def _may_hide(self, X_WC: RigidTransform, rows: np.ndarray, uv: np.ndarray,
+                  z: np.ndarray) -> np.ndarray:
+        """(N, M) whether the boxes of these `rows` may hide the points at pixels uv (N, 2) and
+        ranges z (N,), for `occluded` to test those pairs only: a box in front of the camera
+        hides only points behind its nearest corner and inside the rectangle that its corners
+        project into (with margins far above rounding: a hit found by `occluded` is kept)."""
+        X_CW = X_WC.inverse()
+        p_C = self._box_corners[rows] @ X_CW.rotation().matrix().T + X_CW.translation()
+        z_near = p_C[..., 2].min(axis=1)
+        ahead = z_near > 1e-3  # the others may hide any point
+        corners = p_C[ahead, :, :2] / p_C[ahead, :, 2:] * self._focal + self._center
+        lo, hi = np.full((len(rows), 2), -np.inf), np.full((len(rows), 2), np.inf)
+        lo[ahead], hi[ahead] = corners.min(axis=1) - 1.0, corners.max(axis=1) + 1.0
+        z_near = np.where(ahead, z_near - 1e-6, -np.inf)
+        u, v = uv[:, 0], uv[:, 1]
+        # (M, N), box by box: long rows are faster
+        return ((z_near[:, None] <= z) & (lo[:, :1] <= u) & (hi[:, :1] >= u) & (lo[:, 1:] <= v)
+                & (hi[:, 1:] >= v)).T
+
+    def _in_image(self, X_WC: RigidTransform) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The landmarks of the grid cells that reach into the view that are in front, within
+        range and inside the image minus the border: their positions in the grid's order, their
+        noise-free pixels (N, 2) and ranges (N,)."""
+        p = self._params
+        at = self._grid.slots(self._boxes_in_view(X_WC, self._cell_corners))
+        p_CL = self._points_C(X_WC, at)
+        z = p_CL[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: left out
+            uv = p_CL[:, :2] / z[:, None] * self._focal + self._center
+        keep = np.flatnonzero((z > 0.1) & (z < p.max_range)
+                              & self._lens.in_image(uv, p.border_margin))
+        return at[keep], uv.take(keep, axis=0), z[keep]
 
 
 class RenderedRgbdCamera(TimedCamera):

@@ -87,22 +87,25 @@ def _box_surface_points(rng, centre, size, density) -> tuple[np.ndarray, np.ndar
 class LandmarkGrid:
     """`LandmarkGrid(p_WL, cell)`: the landmarks sorted into square cells on the ground. `boxes`
     (K, 5) are the non-empty cells as boxes standing on the ground (x0, y0, x1, y1, height: the
-    highest landmark in the cell), `members(rows)` the indices of the landmarks of those cells
-    (in no particular order)."""
+    highest landmark in the cell); `order` the landmark indices cell by cell (increasing within
+    a cell), `slot` each landmark's position in `order`, `slots(rows)` the positions in `order`
+    of the landmarks of those cells (cell by cell: a camera gathers them close together)."""
 
     def __init__(self, p_WL: np.ndarray, cell: float):
         p_WL = np.asarray(p_WL, float).reshape(-1, 3)
         origin = p_WL[:, :2].min(axis=0) if len(p_WL) else np.zeros(2)
         ij = np.floor((p_WL[:, :2] - origin) / cell).astype(np.int64)
         key = ij[:, 0] * (ij[:, 1].max(initial=0) + 1) + ij[:, 1]
-        self._order = np.argsort(key, kind="stable")
-        keys, first = np.unique(key[self._order], return_index=True)
-        # the landmarks of non-empty cell r are self._order[self._start[r]:self._start[r + 1]]
-        self._start = np.append(first, len(key))
-        corner = origin + ij[self._order[first]] * cell
-        height = np.maximum.reduceat(p_WL[self._order, 2], first) if len(first) else []
+        self.order = np.argsort(key, kind="stable")
+        self.slot = np.empty_like(self.order)
+        self.slot[self.order] = np.arange(len(key))
+        keys, first = np.unique(key[self.order], return_index=True)
+        # the landmarks of non-empty cell r are self.order[first[r]:first[r] + self._count[r]]
+        self._first, self._count = first, np.diff(np.append(first, len(key)))
+        corner = origin + ij[self.order[first]] * cell
+        height = np.maximum.reduceat(p_WL[self.order, 2], first) if len(first) else []
         self.boxes = np.column_stack([corner, corner + cell, height]).reshape(-1, 5)
 
-    def members(self, rows: np.ndarray) -> np.ndarray:
-        slices = [self._order[self._start[r]:self._start[r + 1]] for r in rows]
-        return np.concatenate(slices) if slices else np.zeros(0, np.int64)
+    def slots(self, rows: np.ndarray) -> np.ndarray:
+        first, count = self._first[rows], self._count[rows]
+        return np.repeat(first - np.cumsum(count) + count, count) + np.arange(count.sum())

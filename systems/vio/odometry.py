@@ -27,6 +27,7 @@ VIO_ODOMETRY = VectorLayout("vio_odometry", [
     ("keyframes", 1), ("last_keyframe", 1), ("restarts", 1)])
 
 VIO_FRAME_ID = 1.0  # the `frame_id` of the VIO's estimator frame in STATE_ESTIMATE (mocap is 0)
+_NONE_USED = np.array([-1.0, -np.inf])  # no IMU sample (seq) and no camera frame (stamp) used yet
 
 
 class VisualInertialOdometry(LeafSystem):
@@ -45,9 +46,11 @@ class VisualInertialOdometry(LeafSystem):
         self.estimator = VioEstimator(params, self.compute_timer)
         self._imu = self.DeclareAbstractInputPort("imu", AbstractValue.Make(ImuSamples.empty()))
         self._rgbd = self.DeclareAbstractInputPort("rgbd", AbstractValue.Make(CameraFrame()))
-        self._last = self.DeclareAbstractState(AbstractValue.Make((-1, -np.inf)))  # seq, stamp
         self._estimate = self.DeclareDiscreteState(_invalid_estimate(stamp=0.0))
         self._odometry = self.DeclareDiscreteState(VIO_ODOMETRY.size)
+        # the last IMU sample's seq and camera frame's stamp used (discrete state: Drake copies
+        # abstract state with copy.deepcopy at every update)
+        self._last = self.DeclareDiscreteState(_NONE_USED)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._reset)
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
         self.DeclareStateOutputPort("state_estimate", self._estimate)
@@ -55,16 +58,16 @@ class VisualInertialOdometry(LeafSystem):
 
     def _reset(self, context, state):
         self.estimator = VioEstimator(self._params, self.compute_timer)
-        state.get_mutable_abstract_state(self._last).set_value((-1, -np.inf))
+        state.get_mutable_discrete_state(self._last).set_value(_NONE_USED)
 
     def _update(self, context, state):
         """The IMU samples, the new frame if any (the estimator times its front and back end),
         the propagated estimate; the rest of the tick is timed as part "propagation"."""
-        seq, stamp = context.get_abstract_state(self._last).get_value()
+        seq, stamp = context.get_discrete_state(self._last).get_value()
         imu, frame = self._imu.Eval(context), self._rgbd.Eval(context)
         timer = self.compute_timer
         start, frame_seconds = timer.clock(), 0.0
-        samples = imu.newer_than(seq)
+        samples = imu.newer_than(int(seq))
         if len(samples):
             self.estimator.add_imu(samples)
             seq = int(samples.seq[-1])
@@ -74,7 +77,7 @@ class VisualInertialOdometry(LeafSystem):
             self.estimator.add_frame(frame)
             frame_seconds = timer.clock() - frame_start
             stamp = frame.stamp
-        state.get_mutable_abstract_state(self._last).set_value((seq, stamp))
+        state.get_mutable_discrete_state(self._last).set_value([seq, stamp])
         previous = context.get_discrete_state(self._estimate).get_value()
         estimate = self.estimator.estimate()
         state.get_mutable_discrete_state(self._estimate).set_value(
@@ -87,8 +90,9 @@ class VisualInertialOdometry(LeafSystem):
 
     def _state_estimate(self, t: float, estimate, previous) -> np.ndarray:
         status = self.estimator.status
-        if estimate is None or status in (VioStatus.INITIALIZING, VioStatus.LOST) or not all(
-                np.all(np.isfinite(x)) for x in (estimate.p, estimate.v, estimate.q, estimate.a)):
+        finite = estimate is not None and np.isfinite(
+            np.concatenate([estimate.p, estimate.v, estimate.q, estimate.a])).all()
+        if not finite or status in (VioStatus.INITIALIZING, VioStatus.LOST):
             return _invalid_estimate(stamp=t)
         R = rotation_matrix(estimate.q)
         return STATE_ESTIMATE.pack(
