@@ -108,6 +108,12 @@ def _noisy_depth(rng, z: np.ndarray, params: RgbdCameraParams, holes: np.ndarray
 GRID = (8, 6)  # feature bucketing cells (columns, rows)
 
 
+def _stable_order(keys: np.ndarray, bound: int) -> np.ndarray:
+    """np.argsort(keys, kind="stable") of integer keys in [0, bound), sorted as the smallest
+    unsigned type that holds them (16 bits or fewer: a radix sort)."""
+    return np.argsort(keys.astype(np.min_scalar_type(bound)), kind="stable")
+
+
 def _bounds(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The lower and upper corners (M, 3) of boxes (M, >= 5: x0, y0, x1, y1, height; standing on
     z = 0)."""
@@ -148,11 +154,17 @@ def occluded(c: np.ndarray, p: np.ndarray, boxes: np.ndarray, own: np.ndarray,
     return hidden
 
 
-def box_corners(boxes: np.ndarray) -> np.ndarray:
-    """The 8 corners (M, 8, 3) of boxes (M, >= 5: x0, y0, x1, y1, height; standing on z = 0)."""
-    corners = np.stack(np.meshgrid([0, 2], [1, 3], [0, 1], indexing="ij"), -1).reshape(-1, 3)
-    return np.stack([boxes[:, corners[:, 0]], boxes[:, corners[:, 1]],
-                     boxes[:, 4:5] * corners[:, 2]], axis=-1)
+class BoxCorners:
+    """The 8 corners `p_W` (M, 8, 3) of boxes (M, >= 5: x0, y0, x1, y1, height; standing on
+    z = 0), and the centre (M, 3) and radius (M,) of a sphere around each box's corners."""
+
+    def __init__(self, boxes: np.ndarray):
+        corners = np.stack(np.meshgrid([0, 2], [1, 3], [0, 1], indexing="ij"), -1).reshape(-1, 3)
+        self.p_W = np.stack([boxes[:, corners[:, 0]], boxes[:, corners[:, 1]],
+                             boxes[:, 4:5] * corners[:, 2]], axis=-1)
+        self.centre = self.p_W.mean(axis=1)
+        self.radius = np.linalg.norm(self.p_W - self.centre[:, None], axis=2).max(axis=1,
+                                                                                   initial=0.0)
 
 
 def ray_depth(c: np.ndarray, d: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -199,7 +211,7 @@ class GeometricRgbdCamera(TimedCamera):
         # A map along a road holds 10^5 landmarks: each frame projects only those of the cells
         # that reach into the view frustum (`_boxes_in_view`).
         self._grid = LandmarkGrid(self.landmarks.p_WL, cell=params.max_range / 4)
-        self._box_corners, self._cell_corners = box_corners(self._boxes), box_corners(
+        self._box_corners, self._cell_corners = BoxCorners(self._boxes), BoxCorners(
             self._grid.boxes)
         # The landmarks in the grid's order (`LandmarkGrid.order`), so that a frame gathers those
         # of a few cells from close together; homogeneous coordinates (N, 4) for one product.
@@ -285,25 +297,28 @@ class GeometricRgbdCamera(TimedCamera):
         # Each new feature's rank: the features already in its cell (kept, then the new ones
         # before it in the shuffled order).
         cell = cells(fresh)
-        order = np.argsort(cell, kind="stable")
-        first = np.searchsorted(cell[order], cell[order])
+        order = _stable_order(cell, len(count))
+        in_cell = np.bincount(cell, minlength=len(count))
         before = np.empty(len(fresh), int)
-        before[order] = np.arange(len(fresh)) - first
+        before[order] = np.arange(len(fresh)) - (np.cumsum(in_cell) - in_cell)[cell[order]]
         rank = count[cell] + before
-        return fresh[np.argsort(rank, kind="stable")]
+        return fresh[_stable_order(rank, len(uv))]
 
     def _points_C(self, X_WC: RigidTransform, at: np.ndarray) -> np.ndarray:
         """The landmarks at positions `at` of the grid's order in the camera frame C (N, 3)."""
         return (X_WC.inverse().GetAsMatrix34() @ self._p_WL_h.take(at, axis=0).T).T
 
-    def _boxes_in_view(self, X_WC: RigidTransform, p_W: np.ndarray) -> np.ndarray:
-        """Rows of the boxes with corners p_W (M, 8, 3) (`box_corners`) not wholly outside one
-        plane of the view frustum (behind the camera, beyond `max_range`, or beyond one image
-        edge), in increasing order."""
-        if not len(p_W):
-            return np.zeros(0, int)
+    def _boxes_in_view(self, X_WC: RigidTransform, boxes: BoxCorners) -> np.ndarray:
+        """Rows of the boxes not wholly outside one plane of the view frustum (behind the camera,
+        beyond `max_range`, or beyond one image edge), in increasing order."""
         X_CW = X_WC.inverse()
-        p_C = p_W @ X_CW.rotation().matrix().T + X_CW.translation()
+        R_CW, p_CW = X_CW.rotation().matrix(), X_CW.translation()
+        # Only the boxes whose spheres reach into 0 < z < max_range are tested corner by corner
+        # (margins far above rounding: the others are wholly behind or beyond, corner by corner).
+        z = boxes.centre @ R_CW[2] + p_CW[2]
+        rows = np.flatnonzero((z + boxes.radius > -1e-6)
+                              & (z - boxes.radius < self._params.max_range + 1e-6))
+        p_C = boxes.p_W[rows] @ R_CW.T + p_CW
         x, y, z = p_C[..., 0], p_C[..., 1], p_C[..., 2]
         (fx, fy), (cx, cy) = self._focal, self._center
         w, h = self._lens.width, self._lens.height
@@ -311,7 +326,7 @@ class GeometricRgbdCamera(TimedCamera):
                    | (fx * x + cx * z < 0).all(1)
                    | (fx * x - (w - cx) * z > 0).all(1)
                    | (fy * y + cy * z < 0).all(1) | (fy * y - (h - cy) * z > 0).all(1))
-        return np.flatnonzero(~outside)
+        return rows[~outside]
 
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
         """`_visible` with the indices as a list."""
@@ -347,7 +362,7 @@ class GeometricRgbdCamera(TimedCamera):
         hides only points behind its nearest corner and inside the rectangle that its corners
         project into (with margins far above rounding: a hit found by `occluded` is kept)."""
         X_CW = X_WC.inverse()
-        p_C = self._box_corners[rows] @ X_CW.rotation().matrix().T + X_CW.translation()
+        p_C = self._box_corners.p_W[rows] @ X_CW.rotation().matrix().T + X_CW.translation()
         z_near = p_C[..., 2].min(axis=1)
         ahead = z_near > 1e-3  # the others may hide any point
         corners = p_C[ahead, :, :2] / p_C[ahead, :, 2:] * self._focal + self._center

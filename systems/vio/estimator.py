@@ -11,8 +11,10 @@ keyframe (the estimate is reported invalid). When keypoints come back the window
 propagated state with priors as wide as its covariance (recovery), in the same frame E, factorized
 with `backend.restart_factorization` (QR: the failures at speed were Cholesky's, backend.py).
 """
+import bisect
 import dataclasses as dc
 import enum
+import itertools
 
 import gtsam
 import numpy as np
@@ -105,7 +107,10 @@ class VioEstimator:
 
     def _integrate(self, pim, t_a: float, t_b: float) -> None:
         """Each sample holds for one period from its stamp; integrates the part in [t_a, t_b)."""
-        for t, f, w in self._samples:
+        # the samples (in time order) that end before t_a, by a margin far above rounding, add
+        # nothing: skipped without a look (IMU-only, the list grows until the next keyframe)
+        first = bisect.bisect_left(self._samples, t_a - self.p.period - 1e-6, key=lambda s: s[0])
+        for t, f, w in itertools.islice(self._samples, first, None):
             dt = min(t + self.p.period, t_b) - max(t, t_a)
             if dt > 1e-9:
                 pim.integrateMeasurement(f, w, dt)
@@ -231,9 +236,9 @@ class VioEstimator:
         tilt = var_rot0[0] + var_rot0[1]
         g = self.p.backend.gravity
         var_p = var_p0 + var_v0 * dt ** 2 \
-            + np.diag(R @ preint[3:6, 3:6] @ R.T) + tilt * (0.5 * g * dt ** 2) ** 2
-        var_v = var_v0 + np.diag(R @ preint[6:9, 6:9] @ R.T) + tilt * (g * dt) ** 2
-        var_rot = var_rot0 + np.diag(R @ preint[:3, :3] @ R.T)
+            + (R @ preint[3:6, 3:6] @ R.T).diagonal() + tilt * (0.5 * g * dt ** 2) ** 2
+        var_v = var_v0 + (R @ preint[6:9, 6:9] @ R.T).diagonal() + tilt * (g * dt) ** 2
+        var_rot = var_rot0 + (R @ preint[:3, :3] @ R.T).diagonal()
         return var_p, var_rot, var_v
 
     def estimate(self) -> Estimate | None:
