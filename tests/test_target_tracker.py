@@ -252,3 +252,19 @@ def test_caught_up_the_reference_keeps_to_the_target_estimate_through_its_veloci
     along = rows[:, REFERENCE.slice("p")][:, 0] - (p0[0] + v[0] * t)
     assert np.abs(along).max() < 0.02
     assert np.abs(rows[:, REFERENCE.slice("a")]).max() < 0.01
+
+
+def test_a_descent_requested_during_the_catch_up_waits_until_the_reference_has_caught_up():
+    """Landing Phase 1 can start while the reference still chases the car (the mission's 0.8 m
+    and 0.8 m/s thresholds): the descent holds the height until the reference has caught up,
+    then goes down at its rate."""
+    p0 = np.array([4.0, 3.0, 1.0])
+    b = bench(TargetGoal.descend(1.8), p0, V_T, start=(0.0, 0.0, HEIGHT))
+    rows = b.run(8.0, each=moving_target(p0, V_T))
+    z = rows[:, REFERENCE.slice("p")][:, 2]
+    t = (np.arange(len(rows)) + 1) * PERIOD                  # the references' stamps
+    gap = np.linalg.norm((p0 + np.outer(t, V_T) - rows[:, REFERENCE.slice("p")])[:, :2], axis=1)
+    first = int(np.argmax(z < HEIGHT - 1e-9))                # the first tick going down
+    assert first > int(2.0 / PERIOD)                         # a 5 m gap at rest takes > 2 s
+    assert gap[first] < 0.25 and np.all(gap[:first] > 0.05)  # caught up (within the L lag)
+    assert z[-1] == pytest.approx(p0[2] - PARAMS.press_depth)    # then down onto the target

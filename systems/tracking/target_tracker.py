@@ -34,6 +34,9 @@ without a velocity step either:
   velocity the target's less the rate, as the landing mission's (L Sec. 6.4);
 - `descent_rate` > 0 with `height`: goes at that rate to `height` above the target (braking onto
   it) and follows it.
+A descent waits until the reference has caught up with the target (below): one requested while
+the reference still chases it (Landing Phase 1 entered on the mission's 0.8 m / 0.8 m/s
+thresholds at the end of a catch-up) holds the height until then.
 
 A descent onto the platform (`descent_rate` > 0 without `height`) leads the target by the level
 touchdown's drift, a_held t^2 / 2 (`level_lead_time`, ramped in from `level_lead_start` down to
@@ -269,7 +272,8 @@ class TargetTracker(ChiTracker):
         """(height, vertical velocity, vertical acceleration, descending) of the reference after
         one period: its vertical speed relative to the target moves toward the goal's (0 held,
         -descent_rate, or braking onto the goal's height) by at most `vertical_acceleration`
-        per second; a descent stops `press_depth` below the target."""
+        per second, a descent only once caught up; a descent stops `press_depth` below the
+        target."""
         goal, dt = memory.goal, self.period
         z, speed = REFERENCE.get(memory.chi, "p")[2], memory.vertical_speed
         rate, brake = goal.descent_rate, self.params.vertical_acceleration
@@ -282,6 +286,8 @@ class TargetTracker(ChiTracker):
             # the speed from which steps shrinking by brake dt stop on the gap: v (v + a dt) / 2a
             stop = 0.5 * (np.sqrt((brake * dt) ** 2 + 8.0 * brake * abs(gap)) - brake * dt)
             wanted = float(np.sign(gap)) * min(rate, stop, abs(gap) / dt)
+        if not memory.caught_up:
+            wanted = max(wanted, 0.0)    # no descent while the reference still chases the target
         change = float(np.clip(wanted - speed, -brake * dt, brake * dt))
         memory.vertical_speed = speed + change
         z_new = z + memory.vertical_speed * dt
