@@ -181,7 +181,8 @@ def test_controller_tilts_by_the_flight_controller_attitude_with_the_estimate_he
     """With `fc_attitude` connected the orientation is the flight controller's tilt turned to the
     estimate's heading (M footnote 18, M(12)-(14)); a non-finite message falls back to the
     estimate's own orientation. Seen through the roll rate that levels a hovering vehicle."""
-    from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
+    from alight.diagrams.onboard.controllers import (DisturbanceSources,
+                                                     load_controllers_config, make_controller)
     from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
                                          CommandMode)
     from alight.systems.rotations import heading_quaternion, quaternion_product
@@ -235,7 +236,8 @@ def test_integrators_hold_while_the_tracker_reports_admittance(name):
     admittance) is not heavier: with `tracker_status` ADMITTANCE_HOLD the mass estimate M(37)
     stays; with the tracker taking off it learns the sag (before the hold it wound the thrust to
     its limit on a tethered take-off, docs/benchmarks.md)."""
-    from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
+    from alight.diagrams.onboard.controllers import (DisturbanceSources,
+                                                     load_controllers_config, make_controller)
     from alight.systems.boundary import ADMITTANCE_HOLD, STATE_ESTIMATE, TRACKER_STATUS
     from alight.systems.control.disturbance import DISTURBANCE_ESTIMATE
     from alight.systems.tracking.chi_tracker import ChiReason
@@ -268,12 +270,14 @@ def test_the_measured_acceleration_gives_the_side_force_within_a_second(name):
     roll within 1 deg of 10 after 0.6 s); with the integrators alone (`integrators`, M) nothing
     moves them at zero position error and it commands the vehicle level, to be blown away
     before the position error teaches them."""
-    from alight.diagrams.onboard.controllers import load_controllers_config, make_controller
+    from alight.diagrams.onboard.controllers import (DisturbanceSources,
+                                                     load_controllers_config, make_controller)
     from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE
     from alight.systems.rotations import rotation_matrix
 
     def desired_roll(source):
-        config = dc.replace(load_controllers_config(), disturbance_source=source)
+        config = dc.replace(load_controllers_config(), disturbance_source=dc.replace(
+            DisturbanceSources(), **{name: source}))
         dut = make_controller(name, config)
         context = _active_at(dut, [0, 0, 2.0], thrust=0.66)
         roll = np.radians(10.0)
@@ -289,3 +293,17 @@ def test_the_measured_acceleration_gives_the_side_force_within_a_second(name):
 
     assert desired_roll("acceleration") == pytest.approx(10.0, abs=1.0)
     assert abs(desired_roll("integrators")) < 1.0
+
+
+def test_each_force_controller_resolves_its_own_disturbance_source():
+    """models/controllers.yaml: the MPC controller measures the external force on VIO (`auto`),
+    the SE(3) controller keeps M's integrators; on mocap both fly the integrators alone."""
+    from alight.diagrams.onboard.controllers import (load_controllers_config,
+                                                     resolve_force_disturbance)
+    config = load_controllers_config()
+    assert (config.disturbance_source.se3, config.disturbance_source.mpc) == \
+        ("integrators", "auto")
+    on_vio = resolve_force_disturbance(config, "vio").disturbance_source
+    assert (on_vio.se3, on_vio.mpc) == ("integrators", "acceleration")
+    on_mocap = resolve_force_disturbance(config, "mocap").disturbance_source
+    assert (on_mocap.se3, on_mocap.mpc) == ("integrators", "integrators")

@@ -2,7 +2,7 @@
 import dataclasses as dc
 
 from alight.models import model_path
-from alight.systems.control.disturbance import DisturbanceLimits, resolve_auto_source
+from alight.systems.control.disturbance import DisturbanceLimits, resolve_source
 from alight.systems.control.failsafe import FailsafeController, FailsafeParams
 from alight.systems.control.force_controller import VehicleModel
 from alight.systems.control.linear_model import LinearModelParams
@@ -15,16 +15,25 @@ from alight.systems.params import bounded, choice, load_params, param_file
 CONTROLLERS = ("se3", "mpc", "failsafe", "linear_mpc")
 
 
+SOURCES = ("integrators", "auto", "acceleration")
+
+
+@dc.dataclass
+class DisturbanceSources:
+    """Each force controller's external force, beyond M(35): also measured from the estimate's
+    acceleration (`acceleration`, low-passed by `acceleration_gain` per tick), or learned by the
+    integrators alone (`integrators`, M); `auto`: `acceleration` on the VIO's odometry (its a_EB
+    is the IMU's), the integrators on any other (`resolve_force_disturbance`).
+    models/controllers.yaml says why each has its default."""
+    se3: str = choice(*SOURCES)
+    mpc: str = choice(*SOURCES)
+
+
 @dc.dataclass
 class ControllersConfig:
     period: float = bounded(0.01, 0.001, 0.1, "s")  # 100 Hz (DESIGN.md)
     max_prediction: float = bounded(0.1, 0.0, 1.0, "s")  # estimate latency compensated at most
-    # The force controllers' external force, beyond M(35): also measured from the estimate's
-    # acceleration (`acceleration`, low-passed by `acceleration_gain` per tick), or learned by the
-    # integrators alone (`integrators`, M: the default, models/controllers.yaml says why); `auto`:
-    # `acceleration` on the VIO's odometry (its a_EB is the IMU's), the integrators on any other
-    # (`resolve_force_disturbance`).
-    disturbance_source: str = choice("integrators", "auto", "acceleration")
+    disturbance_source: DisturbanceSources = dc.field(default_factory=DisturbanceSources)
     acceleration_gain: float = bounded(0.05, 0.0, 1.0)
     vehicle: VehicleModel = dc.field(default_factory=VehicleModel)
     so3: So3Params = dc.field(default_factory=So3Params)
@@ -44,26 +53,29 @@ def load_controllers_config(filename: str = "controllers.yaml") -> ControllersCo
 
 
 def resolve_force_disturbance(config: ControllersConfig, estimator: str) -> ControllersConfig:
-    """`config` with `disturbance_source: auto` made `acceleration` on the VIO's odometry and
-    `integrators` on any other (as the landing MPC's `resolve_disturbance`)."""
-    return resolve_auto_source(config, estimator, otherwise="integrators")
+    """`config` with each `disturbance_source: auto` made `acceleration` on the VIO's odometry
+    and `integrators` on any other (as the landing MPC's `resolve_disturbance`)."""
+    sources = {name: resolve_source(source, estimator, otherwise="integrators")
+               for name, source in dc.asdict(config.disturbance_source).items()}
+    return dc.replace(config, disturbance_source=DisturbanceSources(**sources))
 
 
-def _acceleration_gain(config: ControllersConfig) -> float:
-    """The measured disturbance's gain; an unresolved `auto` (no odometry named: the flight
-    tests and benches on mocap) flies the integrators alone, as on mocap."""
-    return config.acceleration_gain if config.disturbance_source == "acceleration" else 0.0
+def _acceleration_gain(config: ControllersConfig, name: str) -> float:
+    """Controller `name`'s measured disturbance gain; an unresolved `auto` (no odometry named:
+    the flight tests and benches on mocap) flies the integrators alone, as on mocap."""
+    source = getattr(config.disturbance_source, name)
+    return config.acceleration_gain if source == "acceleration" else 0.0
 
 
 def make_controller(name: str, config: ControllersConfig):
     """The LeafSystem of controller `name` (one of CONTROLLERS)."""
     if name == "se3":
         return Se3Controller(config.vehicle, config.so3, config.se3, config.disturbance_limits,
-                             config.period, config.max_prediction, _acceleration_gain(config))
+                             config.period, config.max_prediction, _acceleration_gain(config, "se3"))
     if name == "mpc":
         return MpcForceController(config.vehicle, config.so3, config.mpc,
                                   config.disturbance_limits, config.period,
-                                  config.max_prediction, _acceleration_gain(config))
+                                  config.max_prediction, _acceleration_gain(config, "mpc"))
     if name == "failsafe":
         return FailsafeController(config.vehicle, config.failsafe, config.period)
     if name == "linear_mpc":

@@ -77,14 +77,20 @@ def measured_force(m_e: float, a_EB: np.ndarray, thrust_force: float, R_EB: np.n
     return m_e * np.asarray(a_EB, float)[:2] - thrust_force * np.asarray(R_EB)[:2, 2]
 
 
+def resolve_source(source: str, estimator: str, otherwise: str) -> str:
+    """A disturbance `source` with `auto` made `acceleration` on the VIO's odometry (its a_EB is
+    the IMU's, measured; a mocap or bank a_EB is a differentiated position) and `otherwise` on
+    any other; unchanged when not `auto`."""
+    if source != "auto":
+        return source
+    return "acceleration" if estimator == "vio" else otherwise
+
+
 def resolve_auto_source(params, estimator: str, otherwise: str):
-    """`params` (a dataclass with `disturbance_source`) with `auto` made `acceleration` on the
-    VIO's odometry (its a_EB is the IMU's, measured; a mocap or bank a_EB is a differentiated
-    position) and `otherwise` on any other; unchanged when not `auto`."""
-    if params.disturbance_source != "auto":
-        return params
-    return dc.replace(params, disturbance_source="acceleration" if estimator == "vio"
-                      else otherwise)
+    """`params` (a dataclass with `disturbance_source`) with its source resolved
+    (`resolve_source`)."""
+    return dc.replace(params, disturbance_source=resolve_source(params.disturbance_source,
+                                                                estimator, otherwise))
 
 
 def forces(state: np.ndarray, eta: float) -> tuple[np.ndarray, np.ndarray]:
