@@ -308,9 +308,11 @@ class GeometricRgbdCamera(TimedCamera):
         """The landmarks at positions `at` of the grid's order in the camera frame C (N, 3)."""
         return (X_WC.inverse().GetAsMatrix34() @ self._p_WL_h.take(at, axis=0).T).T
 
-    def _boxes_in_view(self, X_WC: RigidTransform, boxes: BoxCorners) -> np.ndarray:
+    def _boxes_in_view(self, X_WC: RigidTransform,
+                       boxes: BoxCorners) -> tuple[np.ndarray, np.ndarray]:
         """Rows of the boxes not wholly outside one plane of the view frustum (behind the camera,
-        beyond `max_range`, or beyond one image edge), in increasing order."""
+        beyond `max_range`, or beyond one image edge), in increasing order, and their corners in
+        the camera frame C (N, 8, 3)."""
         X_CW = X_WC.inverse()
         R_CW, p_CW = X_CW.rotation().matrix(), X_CW.translation()
         # Only the boxes whose spheres reach into 0 < z < max_range are tested corner by corner
@@ -326,7 +328,7 @@ class GeometricRgbdCamera(TimedCamera):
                    | (fx * x + cx * z < 0).all(1)
                    | (fx * x - (w - cx) * z > 0).all(1)
                    | (fy * y + cy * z < 0).all(1) | (fy * y - (h - cy) * z > 0).all(1))
-        return rows[~outside]
+        return rows[~outside], p_C[~outside]
 
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
         """`_visible` with the indices as a list."""
@@ -344,29 +346,27 @@ class GeometricRgbdCamera(TimedCamera):
         p_WL = self._p_WL.take(at, axis=0)
         rows = np.flatnonzero(np.einsum("ij,ij->i", self._n_WL.take(at, axis=0), c - p_WL) > 0)
         # Only boxes that reach into the view frustum can hide a point in it.
-        in_view = self._boxes_in_view(X_WC, self._box_corners)
+        in_view, corners_C = self._boxes_in_view(X_WC, self._box_corners)
         box_row = np.full(len(self._boxes) + 1, -1)  # a box's row in in_view (-1, the last: none)
         box_row[in_view] = np.arange(len(in_view))
         rows = rows[~occluded(c, p_WL.take(rows, axis=0), self._boxes[in_view],
                               box_row[self._box_of[at[rows]]],
-                              self._may_hide(X_WC, in_view, uv.take(rows, axis=0), z[rows]))]
+                              self._may_hide(corners_C, uv.take(rows, axis=0), z[rows]))]
         # Increasing order: each cell's landmarks are an increasing run, a stable sort merges them.
         index = self._grid.order[at[rows]]
         order = np.argsort(index, kind="stable")
         return index[order], uv.take(rows[order], axis=0), z[rows[order]]
 
-    def _may_hide(self, X_WC: RigidTransform, rows: np.ndarray, uv: np.ndarray,
-                  z: np.ndarray) -> np.ndarray:
-        """(N, M) whether the boxes of these `rows` may hide the points at pixels uv (N, 2) and
-        ranges z (N,), for `occluded` to test those pairs only: a box in front of the camera
-        hides only points behind its nearest corner and inside the rectangle that its corners
-        project into (with margins far above rounding: a hit found by `occluded` is kept)."""
-        X_CW = X_WC.inverse()
-        p_C = self._box_corners.p_W[rows] @ X_CW.rotation().matrix().T + X_CW.translation()
+    def _may_hide(self, p_C: np.ndarray, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """(N, M) whether the M boxes with corners p_C (M, 8, 3) in the camera frame may hide the
+        points at pixels uv (N, 2) and ranges z (N,), for `occluded` to test those pairs only: a
+        box in front of the camera hides only points behind its nearest corner and inside the
+        rectangle that its corners project into (with margins far above rounding: a hit found by
+        `occluded` is kept)."""
         z_near = p_C[..., 2].min(axis=1)
         ahead = z_near > 1e-3  # the others may hide any point
         corners = p_C[ahead, :, :2] / p_C[ahead, :, 2:] * self._focal + self._center
-        lo, hi = np.full((len(rows), 2), -np.inf), np.full((len(rows), 2), np.inf)
+        lo, hi = np.full((len(p_C), 2), -np.inf), np.full((len(p_C), 2), np.inf)
         lo[ahead], hi[ahead] = corners.min(axis=1) - 1.0, corners.max(axis=1) + 1.0
         z_near = np.where(ahead, z_near - 1e-6, -np.inf)
         u, v = uv[:, 0], uv[:, 1]
@@ -379,7 +379,7 @@ class GeometricRgbdCamera(TimedCamera):
         range and inside the image minus the border: their positions in the grid's order, their
         noise-free pixels (N, 2) and ranges (N,)."""
         p = self._params
-        at = self._grid.slots(self._boxes_in_view(X_WC, self._cell_corners))
+        at = self._grid.slots(self._boxes_in_view(X_WC, self._cell_corners)[0])
         p_CL = self._points_C(X_WC, at)
         z = p_CL[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: left out
