@@ -229,14 +229,20 @@ SIM_ONLY_OUTPUTS = {"ground_truth": GROUND_TRUTH}
 # in the active estimator frame E (z up) [m, m/s, m/s^2]; q_EB orientation (w, x, y, z); heading
 # M(3)-(5) and heading rate [rad, rad/s]; variances of [p, v] (6) and of the heading; the id of the
 # active estimator frame and a counter that changes whenever the arbiter switches frames; the
-# transform from the old to the new frame at the last switch (p_OldNew, q_OldNew); valid (0/1).
+# transform from the old to the new frame at the last switch (p_OldNew, q_OldNew); valid (0/1);
+# p_EO [m], the position in E of the odometry frame O in which the estimate is continuous: the
+# sum of the corrections the estimator made to its own propagated position (a VIO keyframe's
+# smoother moving the current pose by 5-20 cm at 8 m/s), so that p_EB - p_EO only moves with the
+# IMU. A consumer that holds a state measured relative to the vehicle (the target estimator)
+# shifts it by the change of p_EO; zero from sources that do not correct a propagation (mocap).
 # Defaults (`STATE_ESTIMATE.vector(p_EB=...)`): a valid estimate at rest, level and heading 0 in
 # frame 0 with no switch yet: identity q_EB and q_OldNew, valid 1, every other field 0.
 STATE_ESTIMATE = VectorLayout("state_estimate", [
     ("stamp", 1), ("p_EB", 3), ("v_EB", 3), ("a_EB", 3), ("q_EB", 4), ("heading", 1),
     ("heading_rate", 1), ("var_pv", 6), ("var_heading", 1), ("frame_id", 1),
-    ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1)],
-    defaults={"q_EB": [1.0, 0.0, 0.0, 0.0], "q_OldNew": [1.0, 0.0, 0.0, 0.0], "valid": 1.0})
+    ("frame_counter", 1), ("p_OldNew", 3), ("q_OldNew", 4), ("valid", 1), ("p_EO", 3)],
+    defaults={"q_EB": [1.0, 0.0, 0.0, 0.0], "q_OldNew": [1.0, 0.0, 0.0, 0.0], "valid": 1.0,
+              "p_EO": [0.0, 0.0, 0.0]})
 _ESTIMATE_VALID = STATE_ESTIMATE.slice("valid").start   # (read at every controller tick)
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from alight.systems.boundary import STATE_ESTIMATE
 from alight.diagrams.scenario import load_scenario
 
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "onboard.py"
@@ -36,9 +37,10 @@ def test_the_replayed_vio_estimate_is_the_flown_one(tmp_path):
     assert recording.duration == 2.5 and len(recording.times["rgbd"]) == 75
     timers, cpu, reader, replayed_stack, _ = onboard.replay(scenario, recording)
     replayed = replayed_stack.loggers.vector_sinks["vio_estimate"][0].take()
-    # one estimate per IMU period (250 Hz) from t = 0 to 2.5 s
-    assert flown.shape == replayed.shape == (round(2.5 / scenario.onboard.vio.period) + 1, 34)
-    valid = flown[:, -1] > 0.5
+    # one estimate per IMU period (250 Hz) from t = 0 to 2.5 s (rows: time, then the estimate)
+    assert flown.shape == replayed.shape == (round(2.5 / scenario.onboard.vio.period) + 1,
+                                             1 + STATE_ESTIMATE.size)
+    valid = flown[:, 1 + STATE_ESTIMATE.slice("valid").start] > 0.5
     assert 0.5 < valid.mean() < 1.0   # initialized from rest during the recording
     np.testing.assert_array_equal(replayed, flown)
     assert len(timers["vio"].seconds("frontend")) == 75 and cpu > 0 and reader > 0

@@ -117,6 +117,12 @@ class PoseHistory:
     def clear(self) -> None:
         self.__init__(self.length)
 
+    def shift(self, dp: np.ndarray) -> None:
+        """Moves every pose by dp [m] (a new array: copies may share the old one)."""
+        samples = self.samples.copy()
+        samples[:, self.P] += dp
+        self.samples = samples
+
     def at(self, t: float, max_extrapolation: float) -> RigidTransform | None:
         samples, P, Q = self.samples, self.P, self.Q
         times = samples[:, 0]
@@ -143,6 +149,7 @@ class EstimatorState:
     last_frame: float = float("nan")
     last_accepted: float = float("nan")
     frame_counter: float = 0.0
+    p_EO: np.ndarray = dc.field(default_factory=lambda: np.full(3, np.nan))  # the last seen
     # the last frame's fused measurements (keypoint id, rectified pixel, accepted), for analysis
     fused: tuple = ()
     status: np.ndarray = dc.field(default_factory=lambda: np.zeros(PERCEPTION_STATUS.size))
@@ -209,11 +216,15 @@ class TargetEstimator(LeafSystem):
 
     def _record_pose(self, st: EstimatorState, estimate: np.ndarray) -> None:
         counter = STATE_ESTIMATE.get(estimate, "frame_counter")
-        if counter != st.frame_counter:
+        p_EO = STATE_ESTIMATE.get(estimate, "p_EO")
+        if counter != st.frame_counter:   # (the new frame's p_EO is taken as it is)
             _reexpress(st.ekf, STATE_ESTIMATE.get(estimate, "p_OldNew"),
                        STATE_ESTIMATE.get(estimate, "q_OldNew"))
             st.poses.clear()
             st.frame_counter = counter
+        elif np.all(np.isfinite(st.p_EO)) and np.any(p_EO != st.p_EO):
+            _shift(st, p_EO - st.p_EO)
+        st.p_EO = p_EO.copy()
         st.poses.add(STATE_ESTIMATE.get(estimate, "stamp"), STATE_ESTIMATE.get(estimate, "p_EB"),
                      STATE_ESTIMATE.get(estimate, "q_EB"), STATE_ESTIMATE.get(estimate, "v_EB"))
 
@@ -499,6 +510,14 @@ def _reexpress(ekf: TargetEkf, p_OldNew, q_OldNew) -> None:
     ekf.q = quaternion_product(q_NewOld, ekf.q)
     G = np.kron(np.eye(ekf.n // 3), R)
     ekf.P = G @ ekf.P @ G.T
+
+
+def _shift(st: EstimatorState, dp: np.ndarray) -> None:
+    """The odometry corrected its own position by dp (STATE_ESTIMATE `p_EO`): the target, measured
+    relative to the vehicle, and the camera poses of the frames still to come move with it."""
+    if st.ekf.initialized:
+        st.ekf.p = st.ekf.p + dp
+    st.poses.shift(dp)
 
 
 def _prediction(ekf: TargetEkf, X_WC: RigidTransform, t: float) -> Prediction | None:

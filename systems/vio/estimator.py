@@ -87,6 +87,8 @@ class VioEstimator:
         self._pim_out = None   # pre-integration from the last keyframe to the newest sample
         self._t_out = -np.inf  # end of what _pim_out covers
         self._last_frame = -np.inf
+        # p_EO: the sum of the keyframes' corrections of the propagated position (STATE_ESTIMATE)
+        self.correction = np.zeros(3)
 
     @property
     def window(self) -> SlidingWindow | None:
@@ -149,6 +151,7 @@ class VioEstimator:
         if len(usable) < self.p.min_features:
             self._update_status(frame.stamp)
             return
+        before = self._propagated_position()
         try:
             with self.timer.measure(frame.stamp, "backend"):
                 pim = gtsam.PreintegratedCombinedMeasurements(window.imu_params,
@@ -167,7 +170,10 @@ class VioEstimator:
             return self._update_status(frame.stamp)
         self._needs_restart = False
         self.status = VioStatus.TRACKING
+        t_before = self._t_out
         self._after_keyframe()
+        if before is not None and self._t_out == t_before:
+            self.correction = self.correction + (self._propagated_position() - before)
 
     def _observations(self, keypoints: Keypoints) -> list[Observation]:
         K = np.asarray(self._calibration["K"], float)
@@ -226,6 +232,13 @@ class VioEstimator:
         self._t_out = max(t_end, t_kf)
 
     # --- output -------------------------------------------------------------------------------
+    def _propagated_position(self) -> np.ndarray | None:
+        """The propagated position at the newest IMU sample (None before initialization)."""
+        if self._window is None or self._window.state is None or self._pim_out is None:
+            return None
+        state = self._window.state
+        return self._pim_out.predict(state.nav, state.bias).position()
+
     def _propagated_covariance(self, state, pim):
         """Variances (in E) of position, attitude and velocity after propagating the keyframe's
         marginals through `pim`: keyframe covariance, velocity uncertainty times time, the

@@ -100,7 +100,8 @@ class VisualInertialOdometry(LeafSystem):
             q_EB=estimate.q, heading=heading(R), heading_rate=(R @ estimate.w)[2],
             var_pv=np.concatenate([estimate.var_p, estimate.var_v]),
             var_heading=estimate.var_rot[2], frame_id=VIO_FRAME_ID, frame_counter=0.0,
-            p_OldNew=np.zeros(3), q_OldNew=[1.0, 0.0, 0.0, 0.0], valid=1.0)
+            p_OldNew=np.zeros(3), q_OldNew=[1.0, 0.0, 0.0, 0.0], valid=1.0,
+            p_EO=self.estimator.correction)
 
     def _odometry_vector(self, estimate) -> np.ndarray:
         e, est = self.estimator, estimate
