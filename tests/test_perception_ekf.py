@@ -16,7 +16,7 @@ from alight.diagrams.onboard.pilot import pilot_model
 from alight.diagrams.onboard.mocap import add_mocap
 from alight.diagrams.onboard.perception import add_target_perception, load_target_estimator_params
 from alight.diagrams.world.sim_vehicle import make_sim_vehicle
-from alight.systems.boundary import GROUND_TRUTH, TARGET_ESTIMATE, CameraFrame
+from alight.systems.boundary import GROUND_TRUTH, STATE_ESTIMATE, TARGET_ESTIMATE, CameraFrame
 from alight.systems.control.scripted_pilot import ScriptedPilot
 from alight.systems.perception.pattern import Pattern, load_pattern_params
 from alight.systems.perception.target_estimator import (PERCEPTION_STATUS, EstimatorState,
@@ -279,6 +279,40 @@ def test_a_re_initialization_keeps_a_known_velocity_and_not_an_unknown_one(ekf):
     assert estimator._kept_motion(dc.replace(state, valid=False)) is None
     ekf.initialize(2.0, [3.0, 4.0, 1.0], [1.0, 0.0, 0.0, 0.0], 4.2)
     np.testing.assert_allclose(ekf.v, 0.0)
+
+
+def test_an_odometry_correction_moves_the_target_and_the_camera_poses_with_the_vehicle(ekf):
+    """The VIO's keyframe smoother moves the vehicle's current position (5-20 cm at 8 m/s) and
+    says so in `p_EO`: the target, measured relative to the vehicle, moves with it, and so do the
+    camera poses that frames still to come are placed with; its velocity and covariance do not
+    change (before, each correction read as target motion and re-initialized the filter 2-8
+    times per descent at 8 m/s). A frame switch takes the new frame's p_EO as it is."""
+    params = load_target_estimator_params()
+    estimator = TargetEstimator(Pattern(params.pattern), params)
+    state = EstimatorState(ekf, PoseHistory(1.0), valid=True)
+
+    def record(t, y, p_EO, frame_counter=0.0):
+        estimator._record_pose(state, STATE_ESTIMATE.vector(
+            stamp=t, p_EB=[0.0, y, 5.0], v_EB=[0.0, 8.0, 0.0], p_EO=p_EO,
+            frame_counter=frame_counter))
+
+    record(0.0, 0.0, [0.0, 0.0, 0.0])
+    record(0.01, 0.08, [0.0, 0.0, 0.0])
+    p, v, P = ekf.p.copy(), ekf.v.copy(), ekf.P.copy()
+    camera_before = state.poses.at(0.005, 0.1).translation()
+    correction = np.array([0.03, 0.1, -0.01])
+    record(0.02, 0.16 + correction[1], correction)
+    np.testing.assert_allclose(ekf.p, p + correction)
+    np.testing.assert_array_equal(ekf.v, v)
+    np.testing.assert_array_equal(ekf.P, P)
+    np.testing.assert_allclose(state.poses.at(0.005, 0.1).translation(),
+                               camera_before + correction)
+    # the next estimate without a new correction moves nothing
+    record(0.03, 0.24 + correction[1], correction)
+    np.testing.assert_allclose(ekf.p, p + correction)
+    # another source (a frame switch, M Sec. 3.5) reports its own p_EO: no shift
+    record(0.04, 0.32, [0.0, 0.0, 0.0], frame_counter=1.0)
+    np.testing.assert_allclose(ekf.p, p + correction)
 
 
 def test_prediction_moves_at_constant_velocity_and_grows_the_covariance(ekf):
