@@ -76,8 +76,14 @@ class TimedCamera(LeafSystem):
     """Exposure and publication timing shared by the camera sources. Subclasses implement
     `_expose(context) -> CameraFrame | None` (None: the frame is lost).
 
-    Output `down_image`  CameraFrame, the latest published frame (invalid before the first); the
-                         forward RGB-D camera names it `rgbd` (`output_name`)
+    Output `down_image`  CameraFrame, the latest frame published by the output's time: each frame
+                         `latency` after its exposure (invalid before the first); the forward
+                         RGB-D camera names it `rgbd` (`output_name`)
+
+    One periodic event per frame, the exposure; a frame's publication is not an event of its own
+    (an event off the plant's 2 ms grid is a simulator step: 50 per simulated second for the two
+    cameras' arrivals): the output takes the newest pending frame whose arrival time has come, as
+    an arrival event would have published it, and the next exposure moves it to the state.
     """
 
     def __init__(self, params: DownCameraParams, output_name: str = "down_image"):
@@ -86,35 +92,47 @@ class TimedCamera(LeafSystem):
         self._pending = self.DeclareAbstractState(AbstractValue.Make([]))
         self._frame = self.DeclareAbstractState(AbstractValue.Make(CameraFrame()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, params.phase, self._on_exposure)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, params.phase + params.latency,
-                                                    self._on_release)
-        self.DeclareStateOutputPort(output_name, self._frame)
+        self.DeclareAbstractOutputPort(
+            output_name, lambda: AbstractValue.Make(CameraFrame()), self._calc_frame,
+            {self.abstract_state_ticket(self._pending), self.abstract_state_ticket(self._frame),
+             self.time_ticket()})
+
+    def _calc_frame(self, context, output):
+        pending = context.get_abstract_state(self._pending).get_value()
+        frame = _published(pending, context.get_time())
+        output.set_value(frame if frame is not None
+                         else context.get_abstract_state(self._frame).get_value())
 
     def _on_exposure(self, context, state):
         self._queue(context, state, self._expose(context))
 
     def _queue(self, context, state, frame: CameraFrame | None) -> None:
-        """Schedules `frame` (None: lost) for publication `latency` after this exposure."""
-        pending = list(context.get_abstract_state(self._pending).get_value())
-        if frame is not None:
-            release = context.get_time() + self._params.latency
-            pending.append((release, frame))
-        state.get_mutable_abstract_state(self._pending).set_value(pending)
-
-    def _on_release(self, context, state):
-        t = context.get_time() + 1e-9
+        """Publishes the frames whose arrival time has come, and schedules `frame` (None: lost)
+        for publication `latency` after this exposure."""
+        t = context.get_time()
         pending = context.get_abstract_state(self._pending).get_value()
-        released = [frame for release, frame in pending if release <= t]
-        if released:
-            state.get_mutable_abstract_state(self._frame).set_value(released[-1])
-        state.get_mutable_abstract_state(self._pending).set_value(
-            [(release, frame) for release, frame in pending if release > t])
+        published = _published(pending, t)
+        if published is not None:
+            state.get_mutable_abstract_state(self._frame).set_value(published)
+        pending = [(release, f) for release, f in pending if release > t + _ARRIVAL_TOLERANCE]
+        if frame is not None:
+            pending.append((t + self._params.latency, frame))
+        state.get_mutable_abstract_state(self._pending).set_value(pending)
 
     def _stamp(self, context) -> float:
         return context.get_time() + self._params.stamp_offset
 
     def _expose(self, context) -> CameraFrame | None:
         raise NotImplementedError
+
+
+_ARRIVAL_TOLERANCE = 1e-9  # s: a frame due at the output's time (rounding of t + latency) is out
+
+
+def _published(pending: list, t: float) -> CameraFrame | None:
+    """The newest of the `pending` (arrival time, frame) pairs that has arrived by `t`."""
+    arrived = [frame for release, frame in pending if release <= t + _ARRIVAL_TOLERANCE]
+    return arrived[-1] if arrived else None
 
 
 # Drake's VTK renders put the image content half a pixel up and left of where CameraInfo's
