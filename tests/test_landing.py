@@ -178,6 +178,30 @@ def test_campaign_resumes_and_a_dask_cluster_gives_the_same_runs(tmp_path):
     assert summary.loc[SPEED, "vio_drift_worst_pct"] == 100 * rows["vio_drift"].max()
 
 
+def test_a_local_campaign_worker_is_replaced_after_its_missions(tmp_path, monkeypatch):
+    """pydrake keeps every built diagram alive (about 85 MB per field mission, campaign.py): the
+    local pool forks a new worker after `MISSIONS_PER_WORKER` missions, and a mission that
+    raises is tabled after the others finished, not lost with its worker."""
+    import os
+    from alight.diagrams.running import campaign
+
+    def fake_job(job):   # a worker's pid instead of a flight
+        if job.seed == 3:
+            raise ValueError("a broken mission")
+        return {"target_speed_setting": job.target_speed, "seed": job.seed, "success": True,
+                "reason": str(os.getpid())}
+
+    monkeypatch.setattr(campaign, "run_job", fake_job)
+    monkeypatch.setattr(campaign, "MISSIONS_PER_WORKER", 2)
+    jobs = campaign_jobs(tmp_path, "field", [SPEED], 7)
+    with pytest.raises(RuntimeError, match="1 of 7 campaign runs failed.*v2.0_s3.*broken"):
+        run_campaign(tmp_path, jobs, workers=2, progress=False)
+    rows = campaign.finished(tmp_path)
+    assert sorted(rows["seed"]) == [0, 1, 2, 4, 5, 6]
+    pids = rows["reason"].value_counts()
+    assert len(pids) >= 3 and pids.max() <= 2, pids   # 7 missions, 2 per worker at most
+
+
 def test_bad_scenario_values_are_refused_naming_the_key(tmp_path, capsys):
     data = yaml.safe_load(model_path("scenario_field.yaml").read_text())
     data["mission"]["descending_p2"] = -1.0
