@@ -116,6 +116,15 @@ def throughput(missions: int, landed: int, wall: float) -> str:
             f"{landed / minutes:.1f} per minute)")
 
 
+# pydrake keeps every diagram it has built alive: a Python LeafSystem's callbacks are bound methods
+# that C++ holds, a cycle the garbage collector cannot see (RobotLocomotion/drake#22515); measured
+# here, every system of a finished field mission survives `gc.collect()`, about 85 MB per mission.
+# A local worker is therefore replaced (forked again from the campaign's process, which has
+# imported everything) after this many missions (250 missions on one worker would hold about
+# 21 GB).
+MISSIONS_PER_WORKER = 8
+
+
 def _execute(jobs, workers: int, scheduler):
     if not jobs:
         return
@@ -145,15 +154,6 @@ def _execute(jobs, workers: int, scheduler):
         job, error = failed[0]
         raise RuntimeError(f"{len(failed)} of {len(jobs)} campaign runs failed, the first "
                            f"{job.run_dir}: {error!r}") from error
-
-
-# pydrake keeps every diagram it has built alive: a Python LeafSystem's callbacks are bound methods
-# that C++ holds, a cycle the garbage collector cannot see (RobotLocomotion/drake#22515); measured
-# here, every system of a finished field mission survives `gc.collect()`, about 85 MB per mission.
-# A local worker is therefore replaced (forked again from the campaign's process, which has
-# imported everything) after this many missions (250 missions on one worker would hold about
-# 21 GB).
-MISSIONS_PER_WORKER = 8
 
 
 def _try_job(job: CampaignJob) -> tuple[CampaignJob, dict | None, Exception | None]:

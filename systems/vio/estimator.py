@@ -236,12 +236,16 @@ class VioEstimator:
         self._t_out = max(t_end, t_kf)
 
     # --- output -------------------------------------------------------------------------------
-    def _propagated_position(self) -> np.ndarray | None:
-        """The propagated position at the newest IMU sample (None before initialization)."""
+    def _propagated(self) -> gtsam.NavState | None:
+        """The state propagated to the newest IMU sample (None before initialization)."""
         if self._window is None or self._window.state is None or self._pim_out is None:
             return None
         state = self._window.state
-        return self._pim_out.predict(state.nav, state.bias).position()
+        return self._pim_out.predict(state.nav, state.bias)
+
+    def _propagated_position(self) -> np.ndarray | None:
+        nav = self._propagated()
+        return None if nav is None else nav.position()
 
     def _propagated_covariance(self, state, pim):
         """Variances (in E) of position, attitude and velocity after propagating the keyframe's
@@ -259,10 +263,10 @@ class VioEstimator:
         return var_p, var_rot, var_v
 
     def estimate(self) -> Estimate | None:
-        if self._window is None or self._window.state is None or self._pim_out is None:
+        nav = self._propagated()
+        if nav is None:
             return None
         state = self._window.state
-        nav = self._pim_out.predict(state.nav, state.bias)
         var_p, var_rot, var_v = self._propagated_covariance(state, self._pim_out)
         R = nav.attitude().matrix()
         b_a, b_g = state.bias.accelerometer(), state.bias.gyroscope()
