@@ -17,7 +17,7 @@ the whole tick as the simulator runs it (wall clock of one 10 ms `AdvanceTo` of 
 alone, Drake's overhead included), next to the MPC tracker's on the medium step for scale.
 
     python bench/trackers.py [--seconds 14] [--part all|tracker|others|trajectory] [--seeds 5]
-                             [--velocity-weight W]
+                             [--velocity-weight W] [--solver daqp|osqp|both]
 """
 import time
 
@@ -101,8 +101,11 @@ def other_trackers(seconds: float) -> None:
         print(f"{name:20s}{us.mean():9.0f}{np.percentile(us, 99):9.0f}{us.max():9.0f}")
 
 
-def tick_times(goal, group: str, seconds: float, p_start) -> tuple[np.ndarray, np.ndarray]:
-    dut = make_mpc_tracker(load_mpc_tracker_params())
+def tick_times(goal, group: str, seconds: float, p_start,
+               solver: str) -> tuple[np.ndarray, np.ndarray]:
+    params = load_mpc_tracker_params()
+    params.axis.solver = solver
+    dut = make_mpc_tracker(params)
     context = dut.CreateDefaultContext()
     dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(p_EB=p_start))
     dut.GetInputPort("active").FixValue(context, [1.0])
@@ -162,6 +165,8 @@ def main():
     parser.add_argument("--part", choices=("all", "tracker", "others", "trajectory"),
                         default="all")
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--solver", choices=("daqp", "osqp", "both"), default="both",
+                        help="the MPC tracker's axis QP back end (both: side by side)")
     parser.add_argument("--velocity-weight", type=float, default=None,
                         help="override the YAML's (0: pure minimum snap)")
     args = parser.parse_args()
@@ -176,15 +181,18 @@ def main():
                               0.5 * t + np.pi / 2])
     goals = {"step": (TrackerGoal.point([8.0, -6.0, 5.0], 2.0), (0.0, 0.0, 2.0)),
              "circle": (TrackerGoal(circle, 0.0, 0.05), (3.0, 0.0, 2.0))}
-    print(f"{'goal':8s}{'group':8s}{'mean us':>9s}{'p99 us':>9s}{'max us':>9s}"
+    print(f"{'goal':8s}{'group':8s}{'solver':8s}{'mean us':>9s}{'p99 us':>9s}{'max us':>9s}"
           f"{'max after 1st us':>18s}{'failed %':>10s}")
+    solvers = ("daqp", "osqp") if args.solver == "both" else (args.solver,)
     for name, (goal, p_start) in goals.items():
         for group in ("slow", "medium", "fast"):
-            times, reasons = tick_times(goal, group, args.seconds, p_start)
-            us = 1e6 * times
-            failed = 100.0 * np.mean(reasons == TrackerReason.SOLVER_FAILED)
-            print(f"{name:8s}{group:8s}{us.mean():9.0f}{np.percentile(us, 99):9.0f}"
-                  f"{us.max():9.0f}{us[1:].max():18.0f}{failed:10.2f}")
+            for solver in solvers:
+                times, reasons = tick_times(goal, group, args.seconds, p_start, solver)
+                us = 1e6 * times
+                failed = 100.0 * np.mean(reasons == TrackerReason.SOLVER_FAILED)
+                print(f"{name:8s}{group:8s}{solver:8s}{us.mean():9.0f}"
+                      f"{np.percentile(us, 99):9.0f}{us.max():9.0f}{us[1:].max():18.0f}"
+                      f"{failed:10.2f}")
 
 
 if __name__ == "__main__":

@@ -279,13 +279,16 @@ def test_the_mpc_tracker_flies_the_group_the_mission_requests():
 
 
 def test_a_fallback_mid_flight_brakes_at_once_within_the_slow_group():
-    """2 s into a 10 m step under `medium` (2.85 m/s, -0.46 m/s^2) the estimator changes to optic
-    flow (only `slow`: 1 m/s, 1 m/s^2; the x axis gets 5/sqrt(2) m/s^3 and 10/sqrt(2) m/s^4 of
-    its jerk and snap, `horizontal_factors`). While over 1.05 m/s the speed never rises after the
-    switch, and it is under 1.05 m/s within X = (v - 1 m/s) / 1 m/s^2 + 2 sqrt(A / S) + h = 2.70 s
-    (the excess shed at slow's acceleration, plus its ramp in and out at slow's snap, no jerk
-    plateau as A S <= J^2, plus a grid step); the braking stays within slow's acceleration, and
-    the goal is not passed (measured: under 1.05 m/s after 2.37 s, 0.001 m past the goal)."""
+    """2 s into a 10 m step under `medium` (2.61 m/s, braking at 1.12 m/s^2 toward the pulled-in
+    goal, jerk +1.94 m/s^3) the estimator changes to optic flow (only `slow`: 1 m/s, 1 m/s^2; the
+    x axis gets 5/sqrt(2) m/s^3 and 10/sqrt(2) m/s^4 of its jerk and snap, `horizontal_factors`).
+    While over 1.05 m/s the speed never rises after the switch, and it is under 1.05 m/s within
+    X = (v - 1 m/s) / 1 m/s^2 + 2 sqrt(A / S) + h (the excess shed at slow's acceleration, plus
+    its ramp in and out at slow's snap, no jerk plateau as A S <= J^2, plus a grid step); the
+    braking stays within slow's acceleration or, while the start's own braking decays, within
+    what the start forces (the snap bound is hard), and the goal is not passed (measured: under
+    1.05 m/s after 1.66 s of X = 2.46 s; braking 1.10 m/s^2 decaying to slow's 1.02 in 0.05 s;
+    the goal not passed, 6 mm short at the end)."""
     loop = ManagedTracker()
     before = loop.fly(10.0, 2.0)
     loop.fix("state_estimate", estimate(OPTIC_FLOW, frame_counter=1.0))
@@ -301,7 +304,12 @@ def test_a_fallback_mid_flight_brakes_at_once_within_the_slow_group():
         + 2 * np.sqrt(slow.acceleration / snap) + 0.1
     assert (over + 1) * 0.01 <= limit_time
     acceleration = np.linalg.norm(after[:, REFERENCE.slice("a")][:, :2], axis=1)
-    assert acceleration.max() <= 1.02 * slow.acceleration
+    a, j = (before[-1, REFERENCE.slice(f)][0] for f in ("a", "j"))
+    forced = abs(a) + (j ** 2 / (2 * snap) if a * j > 0 else 0.0)  # a jerk deepening it first
+    assert acceleration.max() <= max(1.02 * slow.acceleration, forced)
+    excess = np.flatnonzero(acceleration > 1.02 * slow.acceleration)
+    assert np.all(excess == np.arange(len(excess)))                 # only at the start ...
+    assert np.all(np.diff(acceleration[:len(excess) + 1]) <= 0.0)   # ... and decaying
     x = after[:, REFERENCE.slice("p")][:, 0]
     assert x.max() < 10.0 + 0.05
     assert abs(x[-1] - 10.0) < 0.02

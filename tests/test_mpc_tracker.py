@@ -3,21 +3,23 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from alight.systems.boundary import REFERENCE, STATE_ESTIMATE
+from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS
 from alight.systems.params import ConfigError
 from alight.systems.tracking.constraints import (derivative_peaks, limits_table,
                                                  load_constraint_group)
 from alight.systems.tracking.goal import TrackerGoal
-from alight.systems.tracking.mpc_tracker import (MpcTrackerParams, load_mpc_tracker_params,
-                                                 make_mpc_tracker)
+from alight.systems.tracking.mpc_tracker import (MpcTrackerParams, TrackerReason,
+                                                 load_mpc_tracker_params, make_mpc_tracker)
 
 PERIOD = 0.01
 TOLERANCE = 1.02     # never over the group by more than 2 %
 
 
-def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0), handed_over=None):
+def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0), handed_over=None,
+        reasons=None):
     """The tracker alone, started at rest at the estimate (or from the `handed_over` reference);
-    the references, one per tick."""
+    the references, one per tick (and each tick's `tracker_status.reason` appended to
+    `reasons` when given)."""
     dut = make_mpc_tracker(load_mpc_tracker_params())
     context = dut.CreateDefaultContext()
     dut.GetInputPort("state_estimate").FixValue(context, STATE_ESTIMATE.vector(p_EB=p_start))
@@ -31,6 +33,9 @@ def run(goal, seconds, group="medium", p_start=(0.0, 0.0, 2.0), handed_over=None
     for i in range(int(round(seconds / PERIOD))):
         simulator.AdvanceTo((i + 1) * PERIOD)
         rows.append(dut.GetOutputPort("reference").Eval(context))
+        if reasons is not None:
+            reasons.append(TRACKER_STATUS.get(
+                dut.GetOutputPort("tracker_status").Eval(context), "reason"))
     return np.array(rows)
 
 
@@ -72,21 +77,26 @@ def test_a_sampled_trajectory_is_followed_within_limits():
     w = 1.5 / 3.0
     samples = np.column_stack([3 * np.cos(w * t), 3 * np.sin(w * t), np.full_like(t, 2.0),
                                w * t + np.pi / 2])
-    references = run(TrackerGoal(samples, 0.0, 0.05), 16.0, p_start=(3.0, 0.0, 2.0))
+    reasons = []
+    references = run(TrackerGoal(samples, 0.0, 0.05), 16.0, p_start=(3.0, 0.0, 2.0),
+                     reasons=reasons)
+    assert TrackerReason.SOLVER_FAILED not in reasons          # every QP solved, every tick
     assert peaks_over_limits(references, "medium").max() <= TOLERANCE
     times = PERIOD * np.arange(1, len(references) + 1)    # references are stamped a tick ahead
     wanted = TrackerGoal(samples, 0.0, 0.05).sample(times + PERIOD)
     error = np.linalg.norm(references[:, REFERENCE.slice("p")] - wanted[:, :3], axis=1)
     # The catch-up from rest on the moving goal (docs/controllers.md): the lag of reaching
-    # 1.5 m/s from rest under medium's jerk and snap peaks at 1.06 m at 1.54 s (measured), then
-    # closes without a stop by 3 s (0.13 m) and settles; measured peaks per window in comments.
+    # 1.5 m/s from rest under medium's jerk and snap peaks at 0.93 m at 0.92 s (measured), then
+    # closes without a stop by 3 s and stays on the circle; measured peaks per window in
+    # comments. (Before the near steps' shares followed the last plan, the lag came back to
+    # 0.5-0.8 m at 4-9 s, or not, by the machine's rounding: docs/controllers.md.)
     peak = int(np.argmax(error))
-    assert error[peak] < 1.1 and times[peak] < 2.0, (error[peak], times[peak])
+    assert error[peak] < 1.0 and times[peak] < 1.5, (error[peak], times[peak])
     assert np.all(np.diff(error[peak:np.searchsorted(times, 3.0)]) <= 0.0)
-    for start, end, bound in ((3.0, 5.0, 0.15),    # 0.137 m
-                              (5.0, 7.0, 0.10),    # 0.090 m
-                              (7.0, 9.0, 0.06),    # 0.050 m
-                              (9.0, 16.0, 0.04)):  # 0.030 m
+    for start, end, bound in ((3.0, 5.0, 0.03),    # 0.020 m
+                              (5.0, 7.0, 0.03),    # 0.017 m
+                              (7.0, 9.0, 0.03),    # 0.020 m
+                              (9.0, 16.0, 0.03)):  # 0.020 m
         window = (times > start) & (times <= end)
         assert error[window].max() < bound, (start, error[window].max())
 

@@ -38,6 +38,7 @@ class MpcTrackerParams:
     period: float = bounded(0.01, 0.001, 0.1, "s")          # 100 Hz, M Sec. 4.1
     axis: AxisMpcParams = dc.field(default_factory=AxisMpcParams)
     direction_time: float = bounded(1.0, 0.01, 100.0, "s")  # position error -> velocity asked
+    plan_time: float = bounded(0.5, 0.01, 100.0, "s")       # last plan's weight exp(-t / this)
     share_floor: float = bounded(0.1, 0.0, 0.3)             # least share of a horizontal limit
     lookahead: float = bounded(0.5, 0.1, 10.0)              # far goals pulled in (x V N h)
     constraints: str = "medium"                             # default group (M Sec. 7.5)
@@ -194,7 +195,7 @@ class MpcTracker(Tracker):
         """Per-axis bounds (M Sec. 7.5): horizontal shares, ascent/descent, heading."""
         h = group.horizontal.as_array()
         planned = np.array([self._planned_positions(memory, a) for a in range(2)]).T
-        w = rows[:2, 1].T + (rows[:2, 0].T - planned) / self.params.direction_time
+        w = self._asked_velocity(rows, planned)
         shares = horizontal_factors(w, self.params.axis.step, memory.direction,
                                     self.params.share_floor, 0.01 * h)
         if np.linalg.norm(w[0]) > 0.01 * h[0]:
@@ -205,6 +206,21 @@ class MpcTracker(Tracker):
                               group.descending.as_array()[:, None])
         eta = group.heading.as_array()[:, None]
         return horizontal + [vertical, AxisLimits(eta, eta)]
+
+    def _asked_velocity(self, rows: np.ndarray, planned: np.ndarray) -> np.ndarray:
+        """(N, 2): the horizontal velocity the vehicle is asked for along the horizon, whose
+        direction apportions the norm limits between x and y (`horizontal_factors`). Far steps:
+        the goal's velocity plus the position error over `direction_time`. Near steps: the last
+        plan's own velocity, which the virtual vehicle is carrying out and cannot leave faster
+        than its jerk and snap allow, blended into the goal's with weight exp(-t / plan_time).
+        Without that blend a goal that turns (a circle's top) pinned the axis it turns into at
+        the floor share while the vehicle still moved along it: the bound fought the motion, the
+        plan swung its jerk, and the reference lagged the circle by 0.5-0.8 m for 5 s
+        (docs/controllers.md, "The tracker's QP back end")."""
+        p = self.params
+        goal = rows[:2, 1].T + (rows[:2, 0].T - planned) / p.direction_time
+        fade = np.exp(-self.times / p.plan_time)[:, None]
+        return fade * np.gradient(planned, p.axis.step, axis=0) + (1.0 - fade) * goal
 
     def _planned_positions(self, memory: MpcTrackerMemory, a: int) -> np.ndarray:
         """Axis a's last plan at the horizon's times from now (held after its end)."""
