@@ -28,10 +28,11 @@ relaxed along the fastest return into them, got back no faster there and made OS
 max_iter more often (docs/controllers.md). The program is built once as a
 Drake MathematicalProgram and solved by one persistent, warm-started workspace; per solve only
 the goal (a linear cost term) and the bounds change. The default back end is DAQP's dual active
-set (`PersistentDaqp`): it solves each QP to its active set's exact optimum, in 0.2 ms mean and
-0.4 ms p99 on a 3 m circle, where OSQP (`solver: osqp`, ADMM to `osqp_eps`) reached max_iter on
-1.3 % of the solves, took 11 ms p99, and made the closed loop depend on the machine's rounding
-(docs/controllers.md, "The tracker's QP back end").
+set (`PersistentDaqp`): it solves each QP to its active set's exact optimum; the tracker's tick
+then takes 1.2-1.7 ms at p99 and 4.2 ms at worst, no solve failing, where OSQP (`solver: osqp`,
+ADMM to `osqp_eps`) failed up to 2.1 % of them, took up to 17.8 ms at p99 and 20 ms at worst
+(`python bench/trackers.py --part tracker`), and made the closed loop depend on the machine's
+rounding (docs/controllers.md, "The tracker's QP back end").
 """
 import dataclasses as dc
 
