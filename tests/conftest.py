@@ -28,47 +28,18 @@ TAKEOFF = """
 TAKEOFF_END = 5.0
 
 
-# The longest work units (measured with `pytest --durations`: the rendered landing's fixture
-# 137 s, the landing and controllers notebooks 76 and 68 s on the 2-core machine) start first,
-# so that the last missions to finish are short ones.
-LONGEST_FIRST = ("test_landing_rendered.py", "test_notebooks_and_cli.py")
-
-
-@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
-    """The run order for the xdist workers (`--dist loadgroup --no-loadscope-reorder`,
-    pyproject.toml: each worker takes the next work unit when it has two tests or fewer left):
-
-    - the whole-mission tests first (the longest modules first), then the unit tests with the
-      `realtime` tests spread evenly among them: a realtime test holds its lock exclusively
-      (`pytest_runtest_protocol`), so beside it the other worker can only run unit tests, and
-      at the end of the run the unit tests even out the two workers' last missions;
-    - the tests of a module that use one of its module- or class-scoped fixtures (a landing
-      flown once for several tests) are one work unit (`xdist_group`): split between the two
-      workers, each would fly it."""
-    def scoped(item) -> bool:
-        info = getattr(item, "_fixtureinfo", None)
-        return info is not None and any(
-            definitions[-1].scope in ("module", "class", "package")
-            for definitions in info.name2fixturedefs.values() if definitions)
-
-    def first(item) -> bool:
-        return item.path.name not in LONGEST_FIRST
-
-    for item in items:
-        if scoped(item):
-            item.add_marker(pytest.mark.xdist_group(item.path.stem))
+    """Spreads the `realtime` tests evenly through the run order (the others keep theirs), so
+    that the xdist workers, which take tests in order, seldom reach two at once and wait on
+    the lock of `pytest_runtest_protocol`."""
     realtime = [item for item in items if item.get_closest_marker("realtime")]
-    missions = sorted((item for item in items if item.get_closest_marker("mission")
-                       and not item.get_closest_marker("realtime")), key=first)
-    units = [item for item in items if not item.get_closest_marker("mission")
-             and not item.get_closest_marker("realtime")]
-    step = len(units) / max(len(realtime), 1)
+    others = [item for item in items if not item.get_closest_marker("realtime")]
+    if not realtime or not others:
+        return
+    step = len(others) / len(realtime)
     slots = {round((k + 0.5) * step): item for k, item in enumerate(realtime)}
-    spread = [ordered for index, item in enumerate(units)
-              for ordered in ([slots[index], item] if index in slots else [item])]
-    spread += [item for item in realtime if item not in spread]   # no unit tests selected
-    items[:] = missions + spread
+    items[:] = [ordered for index, item in enumerate(others)
+                for ordered in ([slots[index], item] if index in slots else [item])]
 
 
 @pytest.hookimpl(hookwrapper=True)
