@@ -128,8 +128,8 @@ def test_persistent_osqp_driving_the_extension_equals_the_osqp_wrapper():
     also on ticks where the soft constraints are violated."""
     params = load_linear_mpc()
     direct, wrapped = (LinearMpcQp(load_linear_model(), params) for _ in range(2))
-    assert direct.persistent._workspace is not None
-    wrapped.persistent._workspace = None  # osqp.OSQP.update / .solve, as before
+    assert direct.backend._workspace is not None
+    wrapped.backend._workspace = None  # osqp.OSQP.update / .solve, as before
     rng = np.random.default_rng(2)
     N = params.horizon_steps
     for tick in range(8):
@@ -142,7 +142,7 @@ def test_persistent_osqp_driving_the_extension_equals_the_osqp_wrapper():
         assert results[0].ok and results[1].ok
         np.testing.assert_array_equal(results[0].x, results[1].x)
         assert results[0].iterations == results[1].iterations > 0
-        assert direct.last is results[0] and direct.persistent.iterations == results[0].iterations
+        assert direct.last is results[0] and direct.backend.iterations == results[0].iterations
 
 
 def test_daqp_solves_the_same_program_as_clarabel_also_with_violated_soft_constraints():
@@ -196,7 +196,7 @@ def test_daqp_eliminates_exact_penalty_slacks_only(slack_upper, eliminated):
 def test_daqp_reports_a_solve_cut_by_its_iteration_limit():
     params = dc_replace(load_linear_mpc(), solver="daqp")
     qp = LinearMpcQp(load_linear_model(), params)
-    qp.persistent.solver.settings = {"iter_limit": 2}
+    qp.backend.solver.settings = {"iter_limit": 2}
     x0 = np.zeros(10)
     x0[3], x0[6] = 15.0, np.radians(45.0)  # many constraints enter the active set
     qp.update(x0, np.zeros(params.horizon_steps * 10), np.zeros(params.horizon_steps * 3))

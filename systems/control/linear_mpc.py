@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 from pydrake.math import RollPitchYaw
-from pydrake.solvers import MathematicalProgram, OsqpSolver, SolverOptions
+from pydrake.solvers import MathematicalProgram
 
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_ATTITUDE, FC_COMMAND, REFERENCE,
                                      STATE_ESTIMATE, CommandMode, VectorLayout)
@@ -42,9 +42,8 @@ from alight.systems.control.disturbance import resolve_auto_source
 from alight.systems.control.linear_model import (GRAVITY, NUM_INPUTS, NUM_STATES,
                                                  LinearModelParams, continuous_model, discretize,
                                                  euler_angles, euler_rates, to_navigation)
-from alight.systems.control.persistent_daqp import PersistentDaqp
-from alight.systems.control.persistent_osqp import PersistentOsqp, QpResult
-from alight.systems.control.program_qp import variable_index
+from alight.systems.control.program_qp import QpResult, variable_index
+from alight.systems.control.qp_backend import make_qp_backend
 from alight.systems.params import bounded, choice
 from alight.systems.rotations import product_floats, quaternion_heading
 from alight.systems.thrust_curve import ThrustCurve
@@ -124,6 +123,9 @@ class LinearMpcParams:
 
 
 MPC_DISTURBANCE = VectorLayout("mpc_disturbance", [("d_W", 3)])  # the `disturbance` output
+
+# `solver`: the qp_backend kind of each choice
+_BACKENDS = {"persistent": "persistent_osqp", "drake": "osqp", "daqp": "daqp"}
 
 
 def resolve_disturbance(params: LinearMpcParams, estimator: str) -> LinearMpcParams:
@@ -229,10 +231,9 @@ class LinearMpcQp:
             self.h.copy(), np.concatenate([self.u, self.s]))
         self._u_index = variable_index(self.prog, self.u)
         self._s_index = variable_index(self.prog, self.s)
-        self.persistent = PersistentOsqp(self.prog, p.osqp_eps, changing=[self.cost, self.soft]) \
-            if p.solver == "persistent" \
-            else PersistentDaqp(self.prog, p.slack_regularization) if p.solver == "daqp" \
-            else None
+        self.backend = make_qp_backend(
+            self.prog, _BACKENDS[p.solver], tolerance=p.osqp_eps, max_iter=4000,
+            regularization=p.slack_regularization, changing=[self.cost, self.soft])
         # `update`'s operands, looked up once: the evaluators it updates, the transposes, and the
         # soft rows' upper bounds (the commanded-tilt rows keep h) with a per-step view of the
         # predicted states' rows
@@ -244,11 +245,6 @@ class LinearMpcQp:
         self._h_commanded = self._bound[self.num_state_rows:].reshape(N, -1)  # (a view)
         self._limits = (np.array(p.max_velocity[:2]), np.radians(p.max_tilt))
         self.last: QpResult | None = None  # the last solve's result (iterations: bench)
-        self.solver = OsqpSolver()
-        self.options = SolverOptions()
-        for name, value in (("eps_abs", p.osqp_eps), ("eps_rel", p.osqp_eps),
-                            ("max_iter", 4000), ("polishing", 0)):
-            self.options.SetOption(OsqpSolver.id(), name, value)
 
     def update(self, x0: np.ndarray, s_y: np.ndarray, s_u: np.ndarray,
                u_previous: np.ndarray | None = None, d: np.ndarray = np.zeros(3)) -> None:
@@ -283,14 +279,7 @@ class LinearMpcQp:
 
     def solve(self) -> QpResult:
         """Solves the program with its current data; `inputs(result)`, `slacks(result)`."""
-        if self.persistent is not None:
-            self.last = self.persistent.solve()
-            return self.last
-        result = self.solver.Solve(self.prog, None, self.options)
-        x = result.GetSolution(self.prog.decision_variables())
-        details = result.get_solver_details()
-        self.last = QpResult(result.is_success() and bool(np.isfinite(x).all()), x,
-                             int(details.status_val), int(details.iter))
+        self.last = self.backend.solve()
         return self.last
 
     def inputs(self, result: QpResult) -> np.ndarray:

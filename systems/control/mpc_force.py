@@ -38,13 +38,13 @@ reason SOLVER_FALLBACK), then reports SOLVER_FAILED (invalid).
 import dataclasses as dc
 
 import numpy as np
-from pydrake.solvers import ClarabelSolver, MathematicalProgram, OsqpSolver, SolverOptions
+from pydrake.solvers import MathematicalProgram
 
 from alight.systems.control.controller import ControllerReason
 from alight.systems.control.disturbance import DisturbanceGains, DisturbanceLimits
 from alight.systems.control.force_controller import ForceController, VehicleModel
-from alight.systems.control.persistent_daqp import PersistentDaqp
 from alight.systems.control.program_qp import variable_index
+from alight.systems.control.qp_backend import make_qp_backend
 from alight.systems.control.so3 import So3Params
 from alight.systems.params import bounded, choice
 
@@ -136,12 +136,12 @@ class MpcForceQp:
         # Acceleration bounds (the acceleration state is the input) and the first-step slew.
         self._amax = np.repeat(p.max_acceleration, n).astype(float)
         self._box = self.prog.AddBoundingBoxConstraint(-self._amax, self._amax, self.u)
-        if p.solver == "daqp":
-            self._daqp = PersistentDaqp(self.prog, p.slack_regularization)
-            self._u_index = variable_index(self.prog, self.u)
-        else:
-            self._daqp = None
-            self._solver, self._options = _solver(p.solver, p.solver_tolerance)
+        # OSQP (ADMM) needs hundreds to thousands of iterations on this QP when many bounds are
+        # active, Clarabel (interior point) about ten, DAQP a few (module docstring)
+        self._backend = make_qp_backend(self.prog, p.solver, tolerance=p.solver_tolerance,
+                                        max_iter=20000, polishing=True,
+                                        regularization=p.slack_regularization)
+        self._u_index = variable_index(self.prog, self.u)
 
     def initial_state(self, e_p: np.ndarray, e_v: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
         """M(45) as read in the module docstring: rows [e, clip(e'), u_prev] per axis."""
@@ -164,36 +164,9 @@ class MpcForceQp:
             lower[first] = np.clip(u_prev - step, -self._amax[first], self._amax[first])
             higher[first] = np.clip(u_prev + step, -self._amax[first], self._amax[first])
         self._box.evaluator().set_bounds(lower, higher)
-        if self._daqp is not None:
-            result = self._daqp.solve()
-            u = result.x[self._u_index].reshape(3, n)
-            return result.ok and bool(np.all(np.isfinite(u))), u, result.status
-        result = self._solver.Solve(self.prog, None, self._options)
-        u = result.GetSolution(self.u).reshape(3, n)
-        ok = result.is_success() and bool(np.all(np.isfinite(u)))
-        return ok, u, _status_code(result)
-
-
-def _solver(name: str, tolerance: float):
-    """The Drake solver and its options. OSQP (ADMM) needs hundreds to thousands of iterations on
-    this QP when many bounds are active, Clarabel (interior point) about ten: see the README."""
-    options = SolverOptions()
-    if name == "osqp":
-        for key, value in (("eps_abs", tolerance), ("eps_rel", tolerance), ("max_iter", 20000),
-                           ("polishing", 1)):
-            options.SetOption(OsqpSolver.id(), key, value)
-        return OsqpSolver(), options
-    for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
-        options.SetOption(ClarabelSolver.id(), key, tolerance)
-    return ClarabelSolver(), options
-
-
-def _status_code(result) -> int:
-    """The solver's own status code (OSQP: status_val; Clarabel: 0 solved, 1 otherwise)."""
-    details = result.get_solver_details()
-    if hasattr(details, "status_val"):
-        return int(details.status_val)
-    return 0 if result.is_success() else 1
+        result = self._backend.solve()
+        u = result.x[self._u_index].reshape(3, n)
+        return result.ok and bool(np.all(np.isfinite(u))), u, result.status
 
 
 class MpcForceController(ForceController):

@@ -40,8 +40,7 @@ import numpy as np
 from pydrake.solvers import MathematicalProgram
 
 from alight.systems.control.linear_model import discretize
-from alight.systems.control.persistent_daqp import PersistentDaqp
-from alight.systems.control.persistent_osqp import PersistentOsqp
+from alight.systems.control.qp_backend import make_qp_backend
 from alight.systems.params import bounded, choice
 
 ORDER = 4        # position, velocity, acceleration, jerk; driven by the snap
@@ -126,8 +125,8 @@ class AxisMpc:
         prog.AddLinearCost(np.full(3, p.slack_weight), 0.0, self.slack)
         prog.AddQuadraticCost(0.2 * p.slack_weight * np.eye(3), np.zeros(3), self.slack,
                               is_convex=True)
-        self.solver = PersistentDaqp(prog) if p.solver == "daqp" else \
-            PersistentOsqp(prog, p.osqp_eps, p.max_iter, polishing=True)
+        self.solver = make_qp_backend(prog, "daqp" if p.solver == "daqp" else "persistent_osqp",
+                                      tolerance=p.osqp_eps, max_iter=p.max_iter, polishing=True)
         self._snap_index = prog.FindDecisionVariableIndices(self.snap)
         self._x0 = np.zeros(ORDER)
 
