@@ -22,8 +22,10 @@ from alight.systems.params import bounded
 from alight.systems.rotations import heading, heading_quaternion, rotation_matrix
 
 
-# what `levelling` reads at every tick, by index
-_MODE, _LEVELLED_MODES = MISSION_STATUS.slice("mode").start, (Mode.LANDING_P2, Mode.LANDED)
+# what `levelling` reads at every tick, by index; the modes as floats (a NumPy scalar compared
+# with an IntEnum takes ~10 us)
+_MODE = MISSION_STATUS.slice("mode").start
+_LEVELLED_MODES = (float(Mode.LANDING_P2), float(Mode.LANDED))
 _Z_EB = STATE_ESTIMATE.slice("p_EB").start + 2
 _Z_WT, _VALID = TARGET_ESTIMATE.slice("p_WT").start + 2, TARGET_ESTIMATE.slice("valid").start
 
@@ -80,7 +82,8 @@ class TouchdownLevel(LeafSystem):
 
     def levelling(self, context) -> bool:
         """Whether the command is to be levelled from now (the decision of a tick)."""
-        if self._height <= 0.0 or self._status.Eval(context)[_MODE] not in _LEVELLED_MODES:
+        mode = float(self._status.Eval(context)[_MODE])
+        if self._height <= 0.0 or mode not in _LEVELLED_MODES:
             return False
         target = self._target.Eval(context)
         height = self._estimate.Eval(context)[_Z_EB] - target[_Z_WT]
