@@ -1,5 +1,4 @@
 """The simulation-only `ground_truth` output (DESIGN.md): never read by an onboard system."""
-import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import CONTACTS, GROUND_TRUTH
