@@ -3,7 +3,8 @@
 pydrake.math (`RotationMatrix`, `RollPitchYaw`) is the reference; these avoid constructing Drake
 objects inside callbacks that run at every plant step. Tests check them against pydrake.
 The per-tick ones compute on Python floats (`_floats`): on 3- and 4-vectors that is several times
-faster than NumPy array arithmetic, whose per-call overhead dominates at this size.
+faster than NumPy array arithmetic, whose per-call overhead dominates at this size. `norm` and
+`all_finite` are such per-tick stand-ins for np.linalg.norm and np.all(np.isfinite(...)).
 """
 import math
 
@@ -13,6 +14,17 @@ import numpy as np
 def _floats(v) -> list[float]:
     """The elements of a short vector (array, list or tuple) as Python floats."""
     return v.tolist() if isinstance(v, np.ndarray) else [float(e) for e in v]
+
+
+def norm(v: np.ndarray) -> float:
+    """np.linalg.norm of a 1-D float array, the same value (its sqrt(v.dot(v))) without its
+    per-call overhead."""
+    return math.sqrt(v.dot(v))
+
+
+def all_finite(v: np.ndarray) -> bool:
+    """np.all(np.isfinite(v)) of a short 1-D array, without NumPy's per-call overhead."""
+    return all(map(math.isfinite, v.tolist()))
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

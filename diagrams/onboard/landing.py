@@ -42,8 +42,8 @@ def landed_and_disarmed(mission: LandingMission, vehicle, settle_time: float,
     """Stop condition: `settle_time` s after `mission` landed, or `manager` (the control manager
     or the failsafe switch: a `manager_status` output) gave up the mission (failsafe, emergency
     landing), with `vehicle` disarmed."""
-    return DisarmedAfter(lambda context: MISSION_STATUS.get(evaluate(
-        mission, "mission_status", context), "mode") == Mode.LANDED or gave_up(evaluate(
+    return DisarmedAfter(lambda context: float(MISSION_STATUS.get(evaluate(
+        mission, "mission_status", context), "mode")) == Mode.LANDED or gave_up(evaluate(
             manager, "manager_status", context)), vehicle, settle_time)
 
 

@@ -24,7 +24,7 @@ from alight.systems.autopilot.setpoint import SETPOINT
 from alight.systems.boundary import (FC_ATTITUDE, FC_COMMAND, FC_STATUS, NO_COMMAND_STAMP,
                                      ActiveMode, CommandMode, Refusal, VectorLayout)
 from alight.systems.params import bounded
-from alight.systems.rotations import heading, heading_quaternion, rotation_matrix
+from alight.systems.rotations import heading_quaternion, quaternion_heading
 from alight.systems.thrust_curve import GRAVITY, ThrustCurve
 
 
@@ -70,18 +70,32 @@ def check_command(command: np.ndarray, params: CommanderParams, last_stamp: floa
 assert [name for name, _ in FC_COMMAND.fields] == ["stamp", "mode", "q_WD", "w_D", "thrust", "arm"]
 
 
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    """np.array_equal(a, b, equal_nan=True) for two short vectors of the same size, cheaper."""
-    return all(p == q or (p != p and q != q) for p, q in zip(a.tolist(), b.tolist()))
+def _same(a: list, b: list) -> bool:
+    """np.array_equal(a, b, equal_nan=True) for two short lists of floats of one size, cheaper."""
+    return all(p == q or (p != p and q != q) for p, q in zip(a, b))
 
 
-# Commander state vector: last raw command seen (to tell new messages), last accepted command,
-# then flags and counters.
-_STATE = [("seen", FC_COMMAND.size), ("held", FC_COMMAND.size), ("accepted_once", 1),
-          ("armed", 1), ("arm_released", 1), ("failsafe", 1), ("refused", 1),
-          ("last_refusal", 1), ("land_timer", 1), ("landed", 1), ("airborne", 1),
-          ("setpoint", SETPOINT.size),
-          ("status", FC_STATUS.size)]
+# Commander memory: last raw command seen (to tell new messages), last accepted command, then flags
+# and counters. The outputs are state groups of their own.
+_MEMORY = VectorLayout("commander_memory", [
+    ("seen", FC_COMMAND.size), ("held", FC_COMMAND.size), ("accepted_once", 1), ("armed", 1),
+    ("arm_released", 1), ("failsafe", 1), ("refused", 1), ("last_refusal", 1), ("land_timer", 1),
+    ("airborne", 1)])
+# The update works on lists of Python floats with these int indices and slices: a NumPy slice, a
+# VectorLayout.get or pack costs about a microsecond each, and there are dozens per tick.
+_SEEN, _HELD = _MEMORY.slice("seen"), _MEMORY.slice("held")
+(_ACCEPTED_ONCE, _ARMED, _ARM_RELEASED, _FAILSAFE, _REFUSED, _LAST_REFUSAL, _LAND_TIMER,
+ _AIRBORNE) = (_MEMORY.slice(f).start for f, _ in _MEMORY.fields[2:])
+_STAMP, _MODE, _THRUST, _ARM = (FC_COMMAND.slice(f).start
+                                for f in ("stamp", "mode", "thrust", "arm"))
+_SP_MODE, _SP_THRUST, _SP_ARMED = (SETPOINT.slice(f).start for f in ("mode", "thrust", "armed"))
+_Q_WB = FC_ATTITUDE.slice("q_WB")
+# A SETPOINT is the command's mode, q_WD and w_D (in this order), then thrust and armed; FC_STATUS
+# is built in its field order.
+assert SETPOINT.names() == FC_COMMAND.names()[_MODE:_THRUST] + ["thrust", "armed"]
+assert [name for name, _ in FC_STATUS.fields] == [
+    "stamp", "armed", "mode", "link_alive", "last_command_stamp", "refused", "last_refusal",
+    "landed"]
 
 
 class Commander(LeafSystem):
@@ -97,118 +111,103 @@ class Commander(LeafSystem):
 
     def __init__(self, params: CommanderParams, thrust_curve: ThrustCurve, period: float):
         super().__init__()
-        self._layout = VectorLayout("commander_state", _STATE)
         self._p = params
         self._curve = thrust_curve
         self._period = period
-        self._hover_force = thrust_curve.force(params.hover_thrust)
+        hover_force = thrust_curve.force(params.hover_thrust)
+        self._hover_force = hover_force
+        self._land_force = params.land_thrust_fraction * hover_force
+        self._takeoff_force = params.takeoff_thrust_fraction * hover_force
+        self._landed_time = min(params.ground_contact_time, params.land_time)
         self._command = self.DeclareVectorInputPort("fc_command", FC_COMMAND.size)
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
         self._vz = self.DeclareVectorInputPort("vertical_velocity", 1)
-        initial = np.zeros(self._layout.size)
-        initial[self._layout.slice("seen")] = np.nan
-        initial[self._layout.slice("held")] = FC_COMMAND.pack(
+        memory = np.zeros(_MEMORY.size)
+        memory[_SEEN] = np.nan
+        memory[_HELD] = FC_COMMAND.pack(
             stamp=-np.inf, mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
             thrust=0.0, arm=0.0)
-        initial[self._layout.slice("arm_released")] = 1.0
-        initial[self._layout.slice("status")] = FC_STATUS.vector(
-            last_command_stamp=NO_COMMAND_STAMP)
-        initial[self._layout.slice("setpoint")] = SETPOINT.pack(
-            mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3), thrust=0.0,
-            armed=0.0)
-        self._xd = self.DeclareDiscreteState(initial)
+        memory[_ARM_RELEASED] = 1.0
+        self._memory = self.DeclareDiscreteState(memory)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self._outputs = {}
-        for name, field in (("setpoint", "setpoint"), ("armed", "armed"),
-                            ("fc_status", "status")):
-            self._outputs[field] = self.DeclareDiscreteState(initial[self._layout.slice(field)])
-            self.DeclareStateOutputPort(name, self._outputs[field])
-
-    def _get(self, context):
-        return context.get_discrete_state(self._xd).get_value()
+        self._setpoint = self.DeclareDiscreteState(SETPOINT.pack(
+            mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3), thrust=0.0,
+            armed=0.0))
+        self._armed = self.DeclareDiscreteState(1)
+        self._status = self.DeclareDiscreteState(FC_STATUS.vector(
+            last_command_stamp=NO_COMMAND_STAMP))
+        self.DeclareStateOutputPort("setpoint", self._setpoint)
+        self.DeclareStateOutputPort("armed", self._armed)
+        self.DeclareStateOutputPort("fc_status", self._status)
 
     def _update(self, context, discrete_state):
-        L = self._layout
-        x = self._get(context).copy()
+        # `discrete_state` holds the current state on entry (Drake copies it in).
+        p = self._p
         now = context.get_time()
+        memory = discrete_state.get_mutable_value(self._memory)
+        m = memory.tolist()
         command = self._command.Eval(context)
-        held = x[L.slice("held")]
-        if not _same(command, x[L.slice("seen")]):  # a new message
-            x[L.slice("seen")] = command
-            refusal = check_command(command, self._p, FC_COMMAND.get(held, "stamp"), now)
+        seen = command.tolist()
+        held = m[_HELD]
+        if not _same(seen, m[_SEEN]):  # a new message
+            m[_SEEN] = seen
+            refusal = check_command(command, p, held[_STAMP], now)
             if refusal == Refusal.NONE:
-                held = command.copy()
-                x[L.slice("held")] = held
-                x[L.slice("accepted_once")] = 1.0
+                held = seen
+                m[_HELD] = held
+                m[_ACCEPTED_ONCE] = 1.0
             else:
-                x[L.slice("refused")] += 1.0
-                x[L.slice("last_refusal")] = refusal
-        link_alive = bool(x[L.slice("accepted_once")][0]) \
-            and now - FC_COMMAND.get(held, "stamp") <= self._p.stale_timeout
-        armed = bool(x[L.slice("armed")][0])
-        arm_request = FC_COMMAND.get(held, "arm") > 0.5
+                m[_REFUSED] += 1.0
+                m[_LAST_REFUSAL] = float(refusal)
+        link_alive = bool(m[_ACCEPTED_ONCE]) and now - held[_STAMP] <= p.stale_timeout
+        armed = bool(m[_ARMED])
+        arm_request = held[_ARM] > 0.5
         if not arm_request:
-            x[L.slice("arm_released")] = 1.0
+            m[_ARM_RELEASED] = 1.0
         if armed and (not arm_request and link_alive):
             armed = False
         if armed and not link_alive:
-            x[L.slice("failsafe")] = 1.0
-        failsafe = bool(x[L.slice("failsafe")][0])
+            m[_FAILSAFE] = 1.0
+        failsafe = bool(m[_FAILSAFE])
         if (not armed and arm_request and link_alive and not failsafe
-                and x[L.slice("arm_released")][0] > 0.5
-                and FC_COMMAND.get(held, "thrust") <= self._p.max_arm_thrust):
+                and m[_ARM_RELEASED] > 0.5 and held[_THRUST] <= p.max_arm_thrust):
             armed = True
-            x[L.slice("land_timer")] = 0.0
-            x[L.slice("airborne")] = 0.0
-        attitude = self._attitude.Eval(context)
+            m[_LAND_TIMER] = 0.0
+            m[_AIRBORNE] = 0.0
         vz = self._vz.Eval(context)[0]
-        if failsafe:
-            thrust = self._failsafe_thrust(vz)
-            setpoint = SETPOINT.pack(mode=CommandMode.ATTITUDE_THRUST,
-                                     q_WD=heading_quaternion(heading(rotation_matrix(
-                                         FC_ATTITUDE.get(attitude, "q_WB")))),
-                                     w_D=np.zeros(3), thrust=thrust, armed=float(armed))
+        if failsafe:  # the attitude is read only here: each Eval costs ~8 us
+            q_WB = self._attitude.Eval(context)[_Q_WB].tolist()
+            setpoint = [float(CommandMode.ATTITUDE_THRUST),
+                        *heading_quaternion(quaternion_heading(*q_WB)).tolist(), 0.0, 0.0, 0.0,
+                        self._failsafe_thrust(vz), float(armed)]
         else:
-            setpoint = SETPOINT.pack(mode=FC_COMMAND.get(held, "mode"),
-                                     q_WD=FC_COMMAND.get(held, "q_WD"),
-                                     w_D=FC_COMMAND.get(held, "w_D"),
-                                     thrust=FC_COMMAND.get(held, "thrust") if armed else 0.0,
-                                     armed=float(armed))
+            setpoint = held[_MODE:_THRUST] + [held[_THRUST] if armed else 0.0, float(armed)]
         # Land detector: no vertical motion with low thrust, or while the failsafe asks for a
         # descent (ground contact), for land_time -> landed, disarm.
-        force = self._curve.force(SETPOINT.get(setpoint, "thrust"))
-        low_thrust = force < self._p.land_thrust_fraction * self._hover_force
-        quiet = (low_thrust or failsafe) and abs(vz) < self._p.land_speed
-        x[L.slice("land_timer")] = x[L.slice("land_timer")] + self._period if armed and quiet \
-            else 0.0
-        if armed and (force >= self._p.takeoff_thrust_fraction * self._hover_force
-                      or vz > self._p.land_speed):
-            x[L.slice("airborne")] = 1.0
-        landed = (not armed) or x[L.slice("airborne")][0] < 0.5 \
-            or x[L.slice("land_timer")][0] >= min(self._p.ground_contact_time, self._p.land_time)
-        if armed and x[L.slice("land_timer")][0] >= self._p.land_time:
+        force = self._curve.force(setpoint[_SP_THRUST])
+        quiet = (force < self._land_force or failsafe) and abs(vz) < p.land_speed
+        m[_LAND_TIMER] = m[_LAND_TIMER] + self._period if armed and quiet else 0.0
+        if armed and (force >= self._takeoff_force or vz > p.land_speed):
+            m[_AIRBORNE] = 1.0
+        landed = (not armed) or m[_AIRBORNE] < 0.5 or m[_LAND_TIMER] >= self._landed_time
+        if armed and m[_LAND_TIMER] >= p.land_time:
             armed = False
-            x[L.slice("arm_released")] = 0.0
-            setpoint[SETPOINT.slice("armed")] = 0.0
-            setpoint[SETPOINT.slice("thrust")] = 0.0
+            m[_ARM_RELEASED] = 0.0
+            setpoint[_SP_ARMED] = 0.0
+            setpoint[_SP_THRUST] = 0.0
         if not armed:
-            x[L.slice("failsafe")] = 0.0
+            m[_FAILSAFE] = 0.0
             failsafe = False
-        x[L.slice("armed")] = float(armed)
-        x[L.slice("landed")] = float(landed)
-        x[L.slice("setpoint")] = setpoint
+        m[_ARMED] = float(armed)
+        memory[:] = m
         mode = ActiveMode.DISARMED if not armed else (
-            ActiveMode.FAILSAFE_DESCENT if failsafe else ActiveMode(int(SETPOINT.get(setpoint,
-                                                                                     "mode"))))
-        x[L.slice("status")] = FC_STATUS.pack(
-            stamp=now, armed=float(armed), mode=mode, link_alive=float(link_alive),
-            last_command_stamp=FC_COMMAND.get(held, "stamp") if x[L.slice("accepted_once")][0]
-            else NO_COMMAND_STAMP,
-            refused=x[L.slice("refused")], last_refusal=x[L.slice("last_refusal")],
-            landed=float(landed))
-        discrete_state.set_value(self._xd, x)
-        for field, group in self._outputs.items():
-            discrete_state.set_value(group, x[L.slice(field)])
+            ActiveMode.FAILSAFE_DESCENT if failsafe else ActiveMode(int(setpoint[_SP_MODE])))
+        discrete_state.set_value(self._setpoint, setpoint)
+        discrete_state.get_mutable_value(self._armed)[0] = m[_ARMED]
+        discrete_state.set_value(self._status, [
+            now, m[_ARMED], float(mode), float(link_alive),
+            held[_STAMP] if m[_ACCEPTED_ONCE] else NO_COMMAND_STAMP, m[_REFUSED],
+            m[_LAST_REFUSAL], float(landed)])
 
     def _failsafe_thrust(self, vz: float) -> float:
         """Hover thrust corrected by a vertical-speed loop toward -failsafe_descent_speed."""

@@ -30,7 +30,7 @@ class InnerLoop(LeafSystem):
                  airframe: Airframe, period: float):
         super().__init__()
         self._attitude_params = attitude
-        self._max_rate = np.asarray(attitude.max_rate, float)
+        self._max_rate = np.asarray(attitude.max_rate, float).tolist()
         self._pid = RatePid(rate, airframe.inertia, period)
         self._mixer = Mixer(airframe)
         self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
@@ -41,15 +41,16 @@ class InnerLoop(LeafSystem):
         self.DeclareStateOutputPort("motor_command", self._command)
 
     def _update(self, context, discrete_state):
+        # `discrete_state` holds the current state on entry (Drake copies it in).
         setpoint = self._setpoint.Eval(context)
         attitude = self._attitude.Eval(context)
-        w = attitude[_W_B]
-        memory = context.get_discrete_state(self._memory).get_value()
+        w = attitude[_W_B].tolist()
+        memory = discrete_state.get_mutable_value(self._memory)
+        previous = memory.tolist()
         rates = rate_setpoint(setpoint, attitude, self._attitude_params, self._max_rate)
-        torque = self._pid.torque(rates, w, memory)
+        torque = self._pid.torque(rates, w, previous)
         discrete_state.set_value(self._command, self._mixer.motor_commands(setpoint, torque))
-        discrete_state.set_value(self._memory, self._pid.updated(
-            rates, w, setpoint[_ARMED] > 0.5, memory))
+        memory[:] = self._pid.updated(rates, w, setpoint[_ARMED] > 0.5, previous)
 
 
 _W_B = FC_ATTITUDE.slice("w_B")

@@ -5,6 +5,8 @@ the pseudo-inverse of the allocation matrix; when the rotors cannot deliver it, 
 up in a fixed order: first yaw, then collective thrust, and roll/pitch are scaled down last (keeping
 their direction). Rotor thrusts are then turned into ESC commands by the inverse rotor curve.
 """
+import math
+
 import numpy as np
 
 from alight.systems.autopilot.setpoint import SETPOINT
@@ -27,22 +29,24 @@ class MixerSolution:
         self.collective_shift = collective_shift
 
 
-def mix(force: float, torque: np.ndarray, pinv: np.ndarray, f_min: float,
-        f_max: float) -> MixerSolution:
-    """Rotor thrusts within [f_min, f_max] for a collective force [N] and torque [N m]."""
-    base = pinv[:, 0] * force
-    roll_pitch = pinv[:, 1:3] @ torque[:2]
+def mix(force: float, torque, pinv: np.ndarray, f_min: float, f_max: float) -> MixerSolution:
+    """Rotor thrusts within [f_min, f_max] for a collective force [N] and torque [N m] (3 floats,
+    a list or an array)."""
+    # On Python floats past the allocation (NumPy's per-call overhead dominates on 6-vectors); the
+    # roll/pitch allocation keeps NumPy's matrix product (BLAS may round differently).
+    base = (pinv[:, 0] * force).tolist()
+    roll_pitch = (pinv[:, 1:3] @ torque[:2]).tolist()
     yaw = (pinv[:, 3] * torque[2]).tolist()
-    low, high = float(roll_pitch.min()), float(roll_pitch.max())
+    low, high = _extent(roll_pitch)
     span = high - low
     rp_scale = min(1.0, (f_max - f_min) / span) if span > 0 else 1.0
-    roll_pitch = roll_pitch * rp_scale
     # Shift the collective (up or down) as little as possible to fit roll and pitch.
-    fitted = base + roll_pitch
-    lo = f_min - float(fitted.min())
-    hi = f_max - float(fitted.max())
+    fitted = [b + rp * rp_scale for b, rp in zip(base, roll_pitch)]
+    lowest, highest = _extent(fitted)
+    lo = f_min - lowest
+    hi = f_max - highest
     shift = min(max(0.0, lo), hi)
-    thrust = (fitted + shift).tolist()
+    thrust = [f + shift for f in fitted]
     yaw_scale = 1.0
     for f, dy in zip(thrust, yaw):  # largest yaw fraction that keeps every rotor in range
         if dy > 1e-12:
@@ -52,6 +56,13 @@ def mix(force: float, torque: np.ndarray, pinv: np.ndarray, f_min: float,
     yaw_scale = max(yaw_scale, 0.0)
     thrust = np.array([min(max(f + yaw_scale * dy, f_min), f_max) for f, dy in zip(thrust, yaw)])
     return MixerSolution(thrust, rp_scale, yaw_scale, shift * len(thrust))
+
+
+def _extent(values: list[float]) -> tuple[float, float]:
+    """(min, max) of values, both NaN if one is NaN (as ndarray.min and max)."""
+    if any(v != v for v in values):
+        return math.nan, math.nan
+    return min(values), max(values)
 
 
 class Mixer:
@@ -66,9 +77,12 @@ class Mixer:
         self._f_max = airframe.max_thrust
         self._stopped = np.zeros(airframe.num_rotors)
 
-    def motor_commands(self, setpoint: np.ndarray, torque: np.ndarray) -> np.ndarray:
-        if SETPOINT.get(setpoint, "armed") < 0.5:
+    def motor_commands(self, setpoint: np.ndarray, torque) -> np.ndarray:
+        if setpoint[_ARMED] < 0.5:
             return self._stopped
-        force = self._collective.force(SETPOINT.get(setpoint, "thrust"))
+        force = self._collective.force(setpoint[_THRUST])
         solution = mix(force, torque, self._pinv, self._f_min, self._f_max)
         return self._rotor.thrust(solution.rotor_thrust)
+
+
+_ARMED, _THRUST = SETPOINT.slice("armed").start, SETPOINT.slice("thrust").start

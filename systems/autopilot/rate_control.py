@@ -21,29 +21,28 @@ class RateControlParams:
 
 class RatePid:
     """The rate PID's law and memory (the integral of the rate error (3) and the previous
-    measured rate (3), updated every `period`), for the inner loop (inner_loop.py)."""
+    measured rate (3), updated every `period`), for the inner loop (inner_loop.py).
+    Vectors are sequences of Python floats: on 3-vectors NumPy's per-call overhead dominates."""
 
     def __init__(self, params: RateControlParams, inertia: np.ndarray, period: float):
-        self._J = np.asarray(inertia)
+        self._J = np.asarray(inertia, float).tolist()
         self._period = period
-        self._kp, self._kd = np.asarray(params.kp, float), np.asarray(params.kd, float)
-        self._ki_dt = np.asarray(params.ki, float) * period
-        self._limit = np.asarray(params.integrator_limit, float)
+        self._kp = np.asarray(params.kp, float).tolist()
+        self._kd = np.asarray(params.kd, float).tolist()
+        self._ki_dt = (np.asarray(params.ki, float) * period).tolist()
+        self._limit = np.asarray(params.integrator_limit, float).tolist()
 
-    def torque(self, rate_setpoint: np.ndarray, w: np.ndarray, memory: np.ndarray) -> np.ndarray:
+    def torque(self, rate_setpoint, w, memory) -> list[float]:
         """Torque demand [N m, in B] for the setpoint and the measured rate w [rad/s, in B]."""
-        alpha = self._kp * (rate_setpoint - w) + memory[:3] - self._kd * (w - memory[3:]) \
-            / self._period
-        return self._J * alpha + cross(w, self._J * w)
+        dt = self._period
+        alpha = [kp * (r - v) + i - kd * (v - v0) / dt for kp, r, v, i, kd, v0
+                 in zip(self._kp, rate_setpoint, w, memory[:3], self._kd, memory[3:])]
+        gyroscopic = cross(w, [j * v for j, v in zip(self._J, w)]).tolist()
+        return [j * a + g for j, a, g in zip(self._J, alpha, gyroscopic)]
 
-    def updated(self, rate_setpoint: np.ndarray, w: np.ndarray, armed: bool,
-                memory: np.ndarray) -> np.ndarray:
+    def updated(self, rate_setpoint, w, armed: bool, memory) -> list[float]:
         """The memory after one period: the clamped integral (reset while disarmed) and w."""
-        new = np.empty(6)
-        if armed:
-            new[:3] = np.minimum(np.maximum(memory[:3] + self._ki_dt * (rate_setpoint - w),
-                                            -self._limit), self._limit)
-        else:
-            new[:3] = 0.0
-        new[3:] = w
-        return new
+        if not armed:
+            return [0.0, 0.0, 0.0, *w]
+        return [min(max(i + k * (r - v), -limit), limit) for i, k, r, v, limit
+                in zip(memory[:3], self._ki_dt, rate_setpoint, w, self._limit)] + list(w)

@@ -3,6 +3,8 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import FC_COMMAND
 
+_ARM, _THRUST = FC_COMMAND.slice("arm").start, FC_COMMAND.slice("thrust").start
+
 
 class ArmGate(LeafSystem):
     """Input  `fc_command` FC_COMMAND from the controller
@@ -24,10 +26,10 @@ class ArmGate(LeafSystem):
 
     def _calc(self, context, output):
         command = self._command.Eval(context).copy()
-        arm, thrust_enable = self._arm.Eval(context)
-        if self._command_disarms and FC_COMMAND.get(command, "arm") < 0.5:
+        arm, thrust_enable = self._arm.Eval(context).tolist()
+        if self._command_disarms and command[_ARM] < 0.5:
             arm = 0.0
-        command[FC_COMMAND.slice("arm")] = float(arm > 0.5)
+        command[_ARM] = float(arm > 0.5)
         if arm < 0.5 or thrust_enable < 0.5:
-            command[FC_COMMAND.slice("thrust")] = 0.0
+            command[_THRUST] = 0.0
         output.SetFromVector(command)

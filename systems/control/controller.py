@@ -21,10 +21,11 @@ from pydrake.systems.framework import LeafSystem
 from alight.systems.boundary import (CONTROLLER_STATUS, FC_COMMAND, REFERENCE, STATE_ESTIMATE,
                                      CommandMode, estimate_is_valid)
 from alight.systems.estimation.frames import frame_switch
-from alight.systems.rotations import heading_quaternion
+from alight.systems.rotations import all_finite, heading_quaternion
 from alight.systems.timing import ComputeTimer
 
 _FRAME_COUNTER = STATE_ESTIMATE.slice("frame_counter").start
+_THRUST = FC_COMMAND.slice("thrust").start
 
 
 class ControllerReason(enum.IntEnum):
@@ -47,6 +48,11 @@ def status_vector(reason: ControllerReason, solver_status: float = 0.0) -> np.nd
                                   solver_status=solver_status)
 
 
+# what an inactive controller reports at every tick (set_value copies it)
+_INACTIVE_STATUS = status_vector(ControllerReason.INACTIVE)
+_INACTIVE_STATUS.setflags(write=False)
+
+
 def level_command(stamp: float, eta: float, thrust: float, arm: float) -> np.ndarray:
     """Level attitude at heading `eta` with `thrust`: the safe command of a tick that cannot
     compute, and the failsafe's command (M Sec. 5.10)."""
@@ -57,16 +63,16 @@ def level_command(stamp: float, eta: float, thrust: float, arm: float) -> np.nda
 
 def command_is_usable(command: np.ndarray) -> bool:
     """A finite FC_COMMAND with thrust in [0, 1] (what a controller may start from)."""
-    return bool(np.all(np.isfinite(command))
-                and 0.0 <= FC_COMMAND.get(command, "thrust") <= 1.0)
+    return bool(all_finite(command) and 0.0 <= command[_THRUST] <= 1.0)
 
 
 def controller_failed(status: np.ndarray, command: np.ndarray) -> bool:
     """What makes the control manager fall back to the failsafe (M Sec. 7.2): `valid = 0` on a
     computing controller's CONTROLLER_STATUS (INACTIVE: it has not computed yet), or a command
     that is not usable (`command_is_usable`: NaN or infinite anywhere, thrust out of [0, 1])."""
+    # (the reason as a Python float: a NumPy scalar compared with an IntEnum takes ~10 us)
     refused = CONTROLLER_STATUS.get(status, "valid") < 0.5 \
-        and CONTROLLER_STATUS.get(status, "reason") != ControllerReason.INACTIVE
+        and float(CONTROLLER_STATUS.get(status, "reason")) != ControllerReason.INACTIVE
     return bool(refused or not command_is_usable(command))
 
 
@@ -118,7 +124,7 @@ class Controller(LeafSystem):
 
     def _update_inactive(self, context, discrete_state) -> None:
         """A tick while another controller flies: status INACTIVE, the command held."""
-        discrete_state.set_value(self._status, status_vector(ControllerReason.INACTIVE))
+        discrete_state.set_value(self._status, _INACTIVE_STATUS)
 
     def _switch_frame(self, context, discrete_state, R_OldNew: np.ndarray,
                       p_OldNew: np.ndarray) -> None:
@@ -131,7 +137,8 @@ class Controller(LeafSystem):
         role = context.get_discrete_state().get_value(self._role_group)
         was_active, frame_counter = role.tolist()
         if self._active.Eval(context)[0] < 0.5:
-            discrete_state.set_value(self._role, [0.0, frame_counter])
+            if was_active != 0.0:   # (else the role is unchanged: `discrete_state` holds it)
+                discrete_state.set_value(self._role_group, np.array([0.0, frame_counter]))
             return self._update_inactive(context, discrete_state)
         estimate = self._estimate.Eval(context)
         estimate = estimate if estimate_is_valid(estimate) else None

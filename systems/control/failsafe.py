@@ -34,6 +34,7 @@ no usable estimate does a timer stand in for it: the vehicle is taken to be down
 It then commands zero thrust and arm = 0.
 """
 import dataclasses as dc
+import math
 
 import numpy as np
 from pydrake.math import RotationMatrix
@@ -42,7 +43,7 @@ from alight.systems.boundary import FC_COMMAND, STATE_ESTIMATE, VectorLayout, es
 from alight.systems.control.controller import (Controller, ControllerReason, command_is_usable,
                                                level_command, status_vector)
 from alight.systems.control.force_controller import VehicleModel
-from alight.systems.control.linear_model import rotate_to_navigation
+from alight.systems.control.linear_model import rotate_to_navigation, to_navigation
 from alight.systems.control.so3 import desired_orientation
 from alight.systems.control.touchdown import apparent_mass
 from alight.systems.params import bounded
@@ -75,6 +76,11 @@ _STATE = VectorLayout("failsafe_state", [
     ("descended", 1), ("quiet_time", 1), ("touched_down", 1), ("v_z", 1),
     ("estimate_time", 1),    # the last tick with a usable estimate (the activation before one)
     ("brake", 2), ("brake_until", 1)])   # braking acceleration in the heading frame, until when
+# the fields of the inputs read at every tick
+_ARM, _THRUST = FC_COMMAND.slice("arm").start, FC_COMMAND.slice("thrust").start
+_Z_EB, _V_EB = STATE_ESTIMATE.slice("p_EB").start + 2, STATE_ESTIMATE.slice("v_EB")
+_HEADING = STATE_ESTIMATE.slice("heading").start
+_FRAME_COUNTER = STATE_ESTIMATE.slice("frame_counter").start
 
 
 class FailsafeController(Controller):
@@ -96,16 +102,19 @@ class FailsafeController(Controller):
         self._height_seen = self.DeclareDiscreteState([np.nan, np.nan])
         # [v_x, v_y] of the usable estimates in their heading frame, low-passed, and when seen.
         self._velocity_seen = self.DeclareDiscreteState([0.0, 0.0, np.nan])
+        # (pydrake converts a DiscreteStateIndex per call: the per-tick accesses take ints)
+        self._mass_seen_group, self._height_seen_group, self._velocity_seen_group = map(
+            int, (self._mass_seen, self._height_seen, self._velocity_seen))
+        self._mass_bounds = tuple((np.asarray(params.mass_range) * vehicle.mass).tolist())
         self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
 
     def flying_mass(self, command: np.ndarray) -> float:
         """The mass a flying command holds up, M(34) on its tilt, within `mass_range`; NaN for a
         command that is not usable, not armed or without thrust."""
-        if not command_is_usable(command) or FC_COMMAND.get(command, "arm") < 0.5 \
-                or FC_COMMAND.get(command, "thrust") <= 0.0:
+        if not command_is_usable(command) or command[_ARM] < 0.5 or command[_THRUST] <= 0.0:
             return float("nan")
-        lo, hi = np.asarray(self._p.mass_range) * self._vehicle.mass
-        return float(np.clip(apparent_mass(command, self._vehicle), lo, hi))
+        lo, hi = self._mass_bounds
+        return min(max(apparent_mass(command, self._vehicle), lo), hi)   # (np.clip's order)
 
     def last_mass(self, context, last_command: np.ndarray) -> float:
         """m_e: the low-passed mass of the issued commands, else the last command's, else the
@@ -123,31 +132,34 @@ class FailsafeController(Controller):
 
     def _update_inactive(self, context, discrete_state) -> None:
         """Status INACTIVE; the issued command's mass into m_e; the height last seen."""
+        # (on the elements as floats: this runs at every tick of the flight)
         super()._update_inactive(context, discrete_state)
         estimate = self._estimate.Eval(context)
         if estimate_is_valid(estimate) and self.usable(estimate):
-            discrete_state.set_value(self._height_seen, [
-                STATE_ESTIMATE.get(estimate, "p_EB")[2],
-                STATE_ESTIMATE.get(estimate, "frame_counter")])
+            discrete_state.set_value(self._height_seen_group, np.array(
+                [estimate[_Z_EB], estimate[_FRAME_COUNTER]]))
             self._see_velocity(context, discrete_state, estimate)
         mass = self.flying_mass(self._last.Eval(context))
-        if np.isnan(mass):
+        if math.isnan(mass):
             return
-        seen = context.get_discrete_state(self._mass_seen).get_value()[0]
+        seen = context.get_discrete_state().get_value(self._mass_seen_group)[0]
         alpha = min(1.0, self._period / self._p.mass_filter_time) \
             if self._p.mass_filter_time > 0 else 1.0
-        discrete_state.set_value(self._mass_seen, [
-            mass if np.isnan(seen) else seen + alpha * (mass - seen)])
+        discrete_state.set_value(self._mass_seen_group, np.array([
+            mass if math.isnan(seen) else seen + alpha * (mass - seen)]))
 
     def _see_velocity(self, context, discrete_state, estimate) -> None:
-        v_H = rotate_to_navigation(STATE_ESTIMATE.get(estimate, "v_EB"),
-                                   STATE_ESTIMATE.get(estimate, "heading"))[:2]
-        seen = context.get_discrete_state(self._velocity_seen).get_value()
-        recent = np.isfinite(seen[2]) and context.get_time() - seen[2] <= 2 * self._period
+        eta = estimate[_HEADING]
+        v_x, v_y, _ = to_navigation(estimate[_V_EB].tolist(), float(np.cos(eta)),
+                                    float(np.sin(eta)))   # (rotate_to_navigation's operations)
+        now = context.get_time()
+        seen_x, seen_y, seen_t = \
+            context.get_discrete_state().get_value(self._velocity_seen_group).tolist()
+        recent = math.isfinite(seen_t) and now - seen_t <= 2 * self._period
         alpha = min(1.0, self._period / self._p.velocity_filter_time) \
             if self._p.velocity_filter_time > 0 and recent else 1.0
-        discrete_state.set_value(self._velocity_seen, [*(seen[:2] + alpha * (v_H - seen[:2])),
-                                                       context.get_time()])
+        discrete_state.set_value(self._velocity_seen_group, np.array(
+            [seen_x + alpha * (v_x - seen_x), seen_y + alpha * (v_y - seen_y), now]))
 
     def _braking(self, context) -> tuple[np.ndarray, float]:
         """The braking acceleration in the heading frame and its duration (zero: none)."""

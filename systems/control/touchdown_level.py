@@ -22,6 +22,14 @@ from alight.systems.params import bounded
 from alight.systems.rotations import heading, heading_quaternion, rotation_matrix
 
 
+# what `levelling` reads at every tick, by index; the modes as floats (a NumPy scalar compared
+# with an IntEnum takes ~10 us)
+_MODE = MISSION_STATUS.slice("mode").start
+_LEVELLED_MODES = (float(Mode.LANDING_P2), float(Mode.LANDED))
+_Z_EB = STATE_ESTIMATE.slice("p_EB").start + 2
+_Z_WT, _VALID = TARGET_ESTIMATE.slice("p_WT").start + 2, TARGET_ESTIMATE.slice("valid").start
+
+
 @dc.dataclass
 class TouchdownLevelParams:
     # CoM above the target [m] under which Phase 2's attitude command is level (0: never). The
@@ -66,6 +74,7 @@ class TouchdownLevel(LeafSystem):
         self._estimate = self.DeclareVectorInputPort("state_estimate", STATE_ESTIMATE.size)
         self._target = self.DeclareVectorInputPort("target_estimate", TARGET_ESTIMATE.size)
         self._level = self.DeclareDiscreteState(1)   # 1: levelling
+        self._level_group = int(self._level)   # (pydrake converts a DiscreteStateIndex per call)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self.DeclareVectorOutputPort("fc_command", FC_COMMAND.size, self._calc,
                                      {self._command.ticket(), self.discrete_state_ticket(
@@ -73,18 +82,17 @@ class TouchdownLevel(LeafSystem):
 
     def levelling(self, context) -> bool:
         """Whether the command is to be levelled from now (the decision of a tick)."""
-        mode = MISSION_STATUS.get(self._status.Eval(context), "mode")
-        if self._height <= 0.0 or mode not in (Mode.LANDING_P2, Mode.LANDED):
+        mode = float(self._status.Eval(context)[_MODE])
+        if self._height <= 0.0 or mode not in _LEVELLED_MODES:
             return False
         target = self._target.Eval(context)
-        height = (STATE_ESTIMATE.get(self._estimate.Eval(context), "p_EB")[2]
-                  - TARGET_ESTIMATE.get(target, "p_WT")[2])
-        return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5) and height <= self._height
+        height = self._estimate.Eval(context)[_Z_EB] - target[_Z_WT]
+        return bool(target[_VALID] > 0.5) and height <= self._height
 
     def _update(self, context, discrete_state):
-        discrete_state.set_value(self._level, [float(self.levelling(context))])
+        discrete_state.set_value(self._level_group, np.array([float(self.levelling(context))]))
 
     def _calc(self, context, output):
         command = self._command.Eval(context)
-        levelled = context.get_discrete_state(self._level).get_value()[0] > 0.5
+        levelled = context.get_discrete_state().get_value(self._level_group)[0] > 0.5
         output.SetFromVector(level_attitude(command) if levelled else command)

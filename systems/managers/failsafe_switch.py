@@ -35,6 +35,7 @@ disarms itself (a mission that judges itself landed from its estimate cannot dis
 air).
 """
 import dataclasses as dc
+import math
 
 import numpy as np
 
@@ -45,6 +46,7 @@ from alight.systems.control.failsafe import FailsafeParams
 from alight.systems.managers.control_manager import (MANAGER_STATUS, CommandSwitch,
                                                      FailsafeCause, ManagerMode)
 from alight.systems.params import bounded, param_file
+from alight.systems.rotations import all_finite, norm
 
 
 @dc.dataclass
@@ -62,6 +64,15 @@ _STATE = VectorLayout("failsafe_switch_state", [
     ("mode", 1), ("failsafe_cause", 1), ("control_error", 1), ("allowance", 1),
     ("p_ref", 3), ("v_ref", 3), ("t_ref", 1)])   # the reference as last seen changing
 _MODE, _FAILSAFE = _STATE.slice("mode").start, float(ManagerMode.FAILSAFE)
+# The fields read at every tick, by index (the decision runs at every tick: no layout lookups).
+_CAUSE, _ERROR, _ALLOWANCE, _T_REF = (_STATE.slice(field).start for field in (
+    "failsafe_cause", "control_error", "allowance", "t_ref"))
+_P_REF, _V_REF = _STATE.slice("p_ref"), _STATE.slice("v_ref")
+_REFERENCE_P, _REFERENCE_V = REFERENCE.slice("p"), REFERENCE.slice("v")
+_REFERENCE_V_XY = slice(_REFERENCE_V.start, _REFERENCE_V.start + 2)
+_P_EB = STATE_ESTIMATE.slice("p_EB")
+_FC_MODE, _FC_FAILSAFE = FC_STATUS.slice("mode").start, float(ActiveMode.FAILSAFE_DESCENT)
+_NO_CAUSE = FailsafeCause.NONE
 
 
 class FailsafeSwitch(CommandSwitch):
@@ -92,6 +103,7 @@ class FailsafeSwitch(CommandSwitch):
                                                    CONTROLLER_STATUS.size)
         self._state = self.DeclareDiscreteState(_STATE.vector(
             mode=ManagerMode.NORMAL, p_ref=np.nan, v_ref=np.nan, t_ref=np.nan))
+        self._state_group = int(self._state)   # (pydrake converts a DiscreteStateIndex per call)
         # The `NAME.active` outputs and the update read the decision.
         # The command forwarded reads the state and the two commands only (not the decision).
         everything = self._declare_switching(params.period, {
@@ -102,11 +114,14 @@ class FailsafeSwitch(CommandSwitch):
                     [float(self._failsafe_after(context) == index)]), everything)
         self.DeclareVectorOutputPort(
             "arm", 2, lambda context, output: output.SetFromVector(
-                [1.0, 1.0] if self._in_failsafe(context.get_discrete_state(self._state)
-                                                .get_value()) else self._arm.Eval(context)),
+                [1.0, 1.0] if self._in_failsafe(self._x(context)) else self._arm.Eval(context)),
             {self._arm.ticket(), self.all_state_ticket()})
         self.DeclareVectorOutputPort("manager_status", MANAGER_STATUS.size, self._calc_status,
                                      {self.all_state_ticket()})
+
+    def _x(self, context) -> np.ndarray:
+        """The switch's state (do not modify it)."""
+        return context.get_discrete_state().get_value(self._state_group)
 
     @staticmethod
     def _in_failsafe(x: np.ndarray) -> bool:
@@ -117,23 +132,22 @@ class FailsafeSwitch(CommandSwitch):
         return int(self._in_failsafe(self._decide(context)))
 
     def _calc_command(self, context, output):
-        x = context.get_discrete_state(self._state).get_value()
+        x = self._x(context)
         command = self._commands[int(self._in_failsafe(x))].Eval(context)
         if not command_is_usable(command):
             command = context.get_discrete_state(self._last_command).get_value()
         output.SetFromVector(command)
 
     def _calc_status(self, context, output):
-        x = context.get_discrete_state(self._state).get_value()
-        failsafe = self._in_failsafe(x)
+        x = self._x(context)
+        failsafe = float(self._in_failsafe(x))
         output.SetFromVector(MANAGER_STATUS.vector(
-            active=float(failsafe), mode=_STATE.get(x, "mode"),
-            control_error=_STATE.get(x, "control_error"),
-            failsafe_cause=_STATE.get(x, "failsafe_cause"), switches=float(failsafe)))
+            active=failsafe, mode=x[_MODE], control_error=x[_ERROR], failsafe_cause=x[_CAUSE],
+            switches=failsafe))
 
     def _update(self, context, discrete_state):
-        discrete_state.set_value(self._state, self._decide(context))
-        x = context.get_discrete_state(self._state).get_value()   # what the output forwards
+        discrete_state.set_value(self._state_group, self._decide(context))
+        x = self._x(context)   # what the output forwards
         command = self._commands[int(self._in_failsafe(x))].Eval(context)
         if command_is_usable(command):
             discrete_state.set_value(self._last_command, command)
@@ -144,41 +158,37 @@ class FailsafeSwitch(CommandSwitch):
 
     def _compute_decision(self, context) -> np.ndarray:
         """The switch's state after this tick (a function of the inputs and the state)."""
-        S = _STATE
         now = context.get_time()
-        x = context.get_discrete_state(self._state).get_value().copy()
+        x = self._x(context).copy()
         estimate, reference = self._estimate.Eval(context), self._reference.Eval(context)
-        arm, thrust_enable = self._arm.Eval(context) > 0.5
-        flying = bool(arm and thrust_enable)
+        arm, thrust_enable = self._arm.Eval(context).tolist()
+        flying = arm > 0.5 and thrust_enable > 0.5
         estimate_ok = estimate_is_valid(estimate)
         self._follow_reference(x, reference, now, flying,
                                estimate if estimate_ok else None)
-        error = float(np.linalg.norm(REFERENCE.get(reference, "p")
-                                     - STATE_ESTIMATE.get(estimate, "p_EB"))) \
-            if estimate_ok else float("nan")
-        x[S.slice("control_error")] = error if np.isfinite(error) else 0.0
-        if self._in_failsafe(x) or not flying:
+        error = norm(reference[_REFERENCE_P] - estimate[_P_EB]) if estimate_ok else math.nan
+        x[_ERROR] = error if math.isfinite(error) else 0.0
+        if x[_MODE] == _FAILSAFE or not flying:
             return x
-        cause = FailsafeCause.NONE
+        cause = _NO_CAUSE
         if not estimate_ok:
             cause = FailsafeCause.BAD_ESTIMATE
         elif controller_failed(self._status.Eval(context), self._commands[0].Eval(context)):
             cause = FailsafeCause.BAD_CONTROLLER
-        elif not error <= self._p.failsafe_threshold + S.get(x, "allowance") \
+        elif not error <= self._p.failsafe_threshold + x[_ALLOWANCE] \
                 + self._chase_allowance(reference):
             cause = FailsafeCause.CONTROL_ERROR
-        elif FC_STATUS.get(self._fc_status.Eval(context), "mode") \
-                == ActiveMode.FAILSAFE_DESCENT:
+        elif self._fc_status.Eval(context)[_FC_MODE] == _FC_FAILSAFE:
             cause = FailsafeCause.FLIGHT_CONTROLLER
-        if cause != FailsafeCause.NONE:
-            x[S.slice("mode")] = ManagerMode.FAILSAFE
-            x[S.slice("failsafe_cause")] = cause
+        if cause != _NO_CAUSE:
+            x[_MODE] = _FAILSAFE
+            x[_CAUSE] = cause
         return x
 
     def _chase_allowance(self, reference: np.ndarray) -> float:
         """v^2 / (2 a): how far a vehicle accelerating at `chase_acceleration` falls behind a
         reference moving horizontally at v before it is up to speed."""
-        v = REFERENCE.get(reference, "v")[:2]
+        v = reference[_REFERENCE_V_XY]
         return float(v @ v) / (2.0 * self._p.chase_acceleration)
 
     def _follow_reference(self, x: np.ndarray, reference: np.ndarray, now: float, flying: bool,
@@ -187,18 +197,15 @@ class FailsafeSwitch(CommandSwitch):
         not explain, shrunk at `step_speed`. Until the take-off the vehicle's own position (the
         `estimate`, None when not valid) stands for the last reference: the reference it takes
         off to is a step too."""
-        S = _STATE
-        if not flying or not np.all(np.isfinite(x[S.slice("p_ref")])):
-            x[S.slice("p_ref")] = np.nan if estimate is None else \
-                STATE_ESTIMATE.get(estimate, "p_EB")
-            x[S.slice("v_ref")], x[S.slice("t_ref")], x[S.slice("allowance")] = 0.0, now, 0.0
+        if not flying or not all_finite(x[_P_REF]):
+            x[_P_REF] = np.nan if estimate is None else estimate[_P_EB]
+            x[_V_REF], x[_T_REF], x[_ALLOWANCE] = 0.0, now, 0.0
             if not flying:
                 return
-        p, v = REFERENCE.get(reference, "p"), REFERENCE.get(reference, "v")
-        allowance = max(0.0, S.get(x, "allowance") - self._p.step_speed * self._p.period)
-        if not np.array_equal(p, S.get(x, "p_ref")) and np.all(np.isfinite(reference)):
-            if np.all(np.isfinite(x[S.slice("p_ref")])):
-                allowance += float(np.linalg.norm(p - S.get(x, "p_ref") - S.get(x, "v_ref")
-                                                  * (now - S.get(x, "t_ref"))))
-            x[S.slice("p_ref")], x[S.slice("v_ref")], x[S.slice("t_ref")] = p, v, now
-        x[S.slice("allowance")] = allowance
+        p = reference[_REFERENCE_P]
+        allowance = max(0.0, x[_ALLOWANCE] - self._p.step_speed * self._p.period)
+        if (p != x[_P_REF]).any() and all_finite(reference):   # (NaN: changed)
+            if all_finite(x[_P_REF]):
+                allowance += norm(p - x[_P_REF] - x[_V_REF] * (now - x[_T_REF]))
+            x[_P_REF], x[_V_REF], x[_T_REF] = p, reference[_REFERENCE_V], now
+        x[_ALLOWANCE] = allowance

@@ -88,6 +88,7 @@ from alight.systems.mission.reference_generator import (filter_acceleration,
                                                       filter_held_acceleration,
                                                       filter_reference, level_lead)
 from alight.systems.params import bounded
+from alight.systems.rotations import all_finite, norm
 
 
 @dc.dataclass
@@ -292,9 +293,9 @@ class LandingMission(LeafSystem):
     def _usable(self, target: np.ndarray) -> bool:
         """A valid, finite target estimate that has had a measurement."""
         return bool(TARGET_ESTIMATE.get(target, "valid") > 0.5
-                    and np.isfinite(TARGET_ESTIMATE.get(target, "last_measurement"))
-                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("p_WT")]))
-                    and np.all(np.isfinite(target[TARGET_ESTIMATE.slice("v_WT")])))
+                    and math.isfinite(TARGET_ESTIMATE.get(target, "last_measurement"))
+                    and all_finite(target[TARGET_ESTIMATE.slice("p_WT")])
+                    and all_finite(target[TARGET_ESTIMATE.slice("v_WT")]))
 
     def _detected(self, now: float, target: np.ndarray) -> bool:
         """A fresh detection: the last accepted measurement younger than t_DetectionTimeOut."""
@@ -344,7 +345,7 @@ class LandingMission(LeafSystem):
         estimate, target = self._estimate.Eval(context), self._target.Eval(context)
         p_B, v_B = STATE_ESTIMATE.get(estimate, "p_EB"), STATE_ESTIMATE.get(estimate, "v_EB")
         estimate_ok = STATE_ESTIMATE.get(estimate, "valid") > 0.5 and \
-            np.all(np.isfinite(p_B)) and np.all(np.isfinite(v_B))
+            all_finite(p_B) and all_finite(v_B)
         fresh, tracked = self._detected(now, target), self._tracked(now, target)
         p_T, v_T = TARGET_ESTIMATE.get(target, "p_WT"), TARGET_ESTIMATE.get(target, "v_WT")
         if fresh:
@@ -368,7 +369,7 @@ class LandingMission(LeafSystem):
         t_blind = time_to_touchdown(min(height, p.blind_height), p)
         sigma_go = horizontal_sigma(target, t_blind, p.target_velocity_noise) \
             if tracked else np.nan
-        e_xy = np.linalg.norm(p_B[:2] - p_T[:2]) if tracked else np.nan
+        e_xy = norm(p_B[:2] - p_T[:2]) if tracked else np.nan
         x[_STATE.slice("e_xy")] = e_xy
         x[_STATE.slice("sigma_xy")] = horizontal_sigma(target, 0.0, 0.0) if tracked else np.nan
         x[_STATE.slice("predicted_miss")] = e_xy + p.sigma_k * sigma_go

@@ -18,7 +18,7 @@ descending reference leads the target by that much, so the drift ends on the pla
 import numpy as np
 
 from alight.systems.control.linear_model import GRAVITY
-from alight.systems.rotations import rotation_matrix
+from alight.systems.rotations import all_finite, rotation_matrix
 
 
 def predict_target(p_WT: np.ndarray, v_WT: np.ndarray, t_prediction: float) -> np.ndarray:
@@ -66,7 +66,7 @@ def held_acceleration(q_EB, a_B) -> np.ndarray:
     finite."""
     z_B = rotation_matrix(np.asarray(q_EB, float))[:, 2]
     a_B = np.asarray(a_B, float)
-    if not (np.all(np.isfinite(z_B)) and np.all(np.isfinite(a_B))) or z_B[2] < 0.5:
+    if not (all_finite(z_B) and all_finite(a_B)) or z_B[2] < 0.5:
         return np.zeros(3)
     return np.array([GRAVITY * z_B[0] / z_B[2] - a_B[0], GRAVITY * z_B[1] / z_B[2] - a_B[1],
                      0.0])
@@ -78,7 +78,7 @@ def filter_held_acceleration(previous_a, previous_v, v_EB, q_EB, cutoff: float,
     acceleration the rate of its estimated velocity from `previous_v` to `v_EB` over `period`
     (zero while `previous_v` is not finite: the first step)."""
     previous_v = np.asarray(previous_v, float)
-    a_B = (np.asarray(v_EB, float) - previous_v) / period if np.all(np.isfinite(previous_v)) \
+    a_B = (np.asarray(v_EB, float) - previous_v) / period if all_finite(previous_v) \
         else np.zeros(3)
     previous_a = np.asarray(previous_a, float)
     return previous_a + low_pass_gain(cutoff, period) * (held_acceleration(q_EB, a_B)

@@ -47,7 +47,7 @@ from alight.systems.perception.detector import (DetectorParams, PatternDetector,
 from alight.systems.perception.keypoint_tracker import KeypointTracker, KeypointTrackerParams
 from alight.systems.perception.pattern import CORNER_IDS, Pattern, PatternParams
 from alight.systems.perception.target_ekf import TargetEkf, TargetEkfParams
-from alight.systems.rotations import conjugate, quaternion_product, rotation_matrix
+from alight.systems.rotations import all_finite, conjugate, quaternion_product, rotation_matrix
 from alight.systems.sensors.down_camera_lens import Lens
 from alight.systems.timing import ComputeTimer
 
@@ -102,6 +102,12 @@ PERCEPTION_STATUS = VectorLayout("perception_status", [
     ("rejected", 1), ("detected", 1)])
 
 
+# the state estimate's fields recorded at every tick
+_STAMP, _FRAME_COUNTER = (STATE_ESTIMATE.slice(field).start for field in ("stamp", "frame_counter"))
+_P_EB, _Q_EB, _V_EB, _P_EO = (STATE_ESTIMATE.slice(field) for field in (
+    "p_EB", "q_EB", "v_EB", "p_EO"))
+
+
 class PoseHistory:
     """Recent state-estimate poses of B, interpolated at camera stamps: `samples` rows
     (t, p (3), q (4), v (3)), a new array at every change (copies may share it)."""
@@ -115,8 +121,12 @@ class PoseHistory:
         samples = self.samples
         if len(samples) and t <= samples[-1, 0]:
             return
-        keep = samples[:, 0] > t - self.length
-        self.samples = np.vstack([samples[keep], np.concatenate([[t], p, q, v])])
+        # the samples kept, newer than t - length, are the last ones (the times increase)
+        kept = samples[int(np.searchsorted(samples[:, 0], t - self.length, side="right")):]
+        added = np.empty((len(kept) + 1, samples.shape[1]))
+        added[:-1] = kept
+        added[-1, 0], added[-1, self.P], added[-1, self.Q], added[-1, self.V] = t, p, q, v
+        self.samples = added
 
     def clear(self) -> None:
         self.__init__(self.length)
@@ -219,18 +229,18 @@ class TargetEstimator(LeafSystem):
                 self.process(st, frame)
 
     def _record_pose(self, st: EstimatorState, estimate: np.ndarray) -> None:
-        counter = STATE_ESTIMATE.get(estimate, "frame_counter")
-        p_EO = STATE_ESTIMATE.get(estimate, "p_EO")
+        # (the fields by index and the arrays' own methods: this runs at every tick)
+        counter = estimate[_FRAME_COUNTER]
+        p_EO = estimate[_P_EO]
         if counter != st.frame_counter:   # (the new frame's p_EO is taken as it is)
             _reexpress(st.ekf, STATE_ESTIMATE.get(estimate, "p_OldNew"),
                        STATE_ESTIMATE.get(estimate, "q_OldNew"))
             st.poses.clear()
             st.frame_counter = counter
-        elif np.all(np.isfinite(st.p_EO)) and np.any(p_EO != st.p_EO):
+        elif all_finite(st.p_EO) and (p_EO != st.p_EO).any():
             _shift(st, p_EO - st.p_EO)
         st.p_EO = p_EO.copy()
-        st.poses.add(STATE_ESTIMATE.get(estimate, "stamp"), STATE_ESTIMATE.get(estimate, "p_EB"),
-                     STATE_ESTIMATE.get(estimate, "q_EB"), STATE_ESTIMATE.get(estimate, "v_EB"))
+        st.poses.add(estimate[_STAMP], estimate[_P_EB], estimate[_Q_EB], estimate[_V_EB])
 
     def process(self, st: EstimatorState, frame: CameraFrame) -> None:
         """One frame: tracking and/or detection, EKF updates (public for tests and benchmarks)."""

@@ -40,11 +40,13 @@ class Wind(LeafSystem):
         self._noise = self.DeclareVectorInputPort("noise", 3)
         self._gust = self.DeclareDiscreteState(3)
         self._wind = self.DeclareDiscreteState(self._mean + np.zeros(3))
+        # (pydrake converts a DiscreteStateIndex per call: the update takes ints)
+        self._groups = (int(self._gust), int(self._wind))
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         self.DeclareStateOutputPort("wind", self._wind)
 
     def _update(self, context, discrete_state):
         # `discrete_state` holds the current state on entry (Drake copies it in): updated in place.
-        gust = discrete_state.get_mutable_value(self._gust)
+        gust = discrete_state.get_mutable_value(self._groups[0])
         gust[:] = self._decay * gust + self._drive * self._noise.Eval(context)
-        discrete_state.get_mutable_value(self._wind)[:] = self._mean + gust
+        discrete_state.get_mutable_value(self._groups[1])[:] = self._mean + gust

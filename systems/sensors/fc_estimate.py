@@ -13,7 +13,7 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import FC_ATTITUDE
 from alight.systems.params import bounded
-from alight.systems.rotations import (quaternion_from_rotation_vector, quaternion_product,
+from alight.systems.rotations import (product_floats, quaternion_from_rotation_vector,
                                       rotation_matrix)
 
 
@@ -46,10 +46,8 @@ class FcEstimate(LeafSystem):
         # State: the rotation-vector attitude error (3) and the two outputs, each its own group
         # so that the outputs are state output ports (no Python call when read).
         self._error = self.DeclareDiscreteState(3)
-        self._stamp, self._q_WB, self._w_B = (FC_ATTITUDE.slice(f)
-                                              for f in ("stamp", "q_WB", "w_B"))
         initial = np.zeros(FC_ATTITUDE.size)
-        initial[self._q_WB.start] = 1.0
+        initial[FC_ATTITUDE.slice("q_WB").start] = 1.0
         self._fc_attitude = self.DeclareDiscreteState(initial)
         self._vz = self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
@@ -60,18 +58,24 @@ class FcEstimate(LeafSystem):
     def _update(self, context, discrete_state):
         # On Python floats where NumPy's per-call overhead dominates (3- and 4-vectors); the
         # rotation keeps NumPy's matrix product (BLAS rounds differently from plain floats).
-        # `discrete_state` holds the current state on entry (Drake copies it in); updated in place.
+        # `discrete_state` holds the current state on entry (Drake copies it in); updated in place,
+        # each group with one write.
         x = self._state.Eval(context)
         noise = self._noise.Eval(context).tolist()
-        error = discrete_state.get_mutable_value(self._error)
-        error[:] = [self._decay * e + self._attitude_drive * n
-                    for e, n in zip(error.tolist(), noise[:3])]
+        error_state = discrete_state.get_mutable_value(self._error)
+        error = [self._decay * e + self._attitude_drive * n
+                 for e, n in zip(error_state.tolist(), noise[:3])]
+        error_state[:] = error
         q = x[:4]
         norm = math.sqrt(q.dot(q))  # np.linalg.norm(q)
         q_WB = [e / norm for e in q.tolist()]
         w_B = (rotation_matrix(q_WB).T @ x[7:10]).tolist()
-        fc_attitude = discrete_state.get_mutable_value(self._fc_attitude)
-        fc_attitude[self._stamp] = context.get_time()
-        fc_attitude[self._q_WB] = quaternion_product(q_WB, quaternion_from_rotation_vector(error))
-        fc_attitude[self._w_B] = [w + self._rate_std * n for w, n in zip(w_B, noise[3:6])]
+        discrete_state.get_mutable_value(self._fc_attitude)[:] = [
+            context.get_time(),
+            *product_floats(*q_WB, *quaternion_from_rotation_vector(error).tolist()),
+            *[w + self._rate_std * n for w, n in zip(w_B, noise[3:6])]]
         discrete_state.get_mutable_value(self._vz)[0] = x[12] + self._vz_std * noise[6]
+
+
+# _update writes FC_ATTITUDE in its field order.
+assert [name for name, _ in FC_ATTITUDE.fields] == ["stamp", "q_WB", "w_B"]

@@ -1,11 +1,8 @@
 """The simulation-only `ground_truth` output (DESIGN.md): never read by an onboard system."""
-import math
-
-import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import CONTACTS, GROUND_TRUTH
-from alight.systems.rotations import rotation_matrix
+from alight.systems.rotations import norm, rotation_matrix
 
 
 class GroundTruth(LeafSystem):
@@ -42,7 +39,7 @@ class GroundTruth(LeafSystem):
         # Each field written in place by its slice (no per-call packing of keyword arguments).
         at, y = self._at, output.get_mutable_value()
         x = self._state.Eval(context)
-        q_WB = x[:4] / _norm(x[:4])
+        q_WB = x[:4] / norm(x[:4])
         y[at["p_WB"]] = x[4:7]
         y[at["q_WB"]] = q_WB
         y[at["v_WB"]] = x[10:13]
@@ -55,12 +52,7 @@ class GroundTruth(LeafSystem):
         else:
             x_T = self._target.Eval(context)
             y[at["p_WT"]] = x_T[4:7]
-            y[at["q_WT"]] = x_T[:4] / _norm(x_T[:4])
+            y[at["q_WT"]] = x_T[:4] / norm(x_T[:4])
             y[at["v_WT"]] = x_T[10:13]
             y[at["target_present"]] = 1.0
         y[self._contact_fields] = self._contacts.Eval(context)
-
-
-def _norm(v: np.ndarray) -> float:
-    """np.linalg.norm of a 1-D array, the same value without its per-call overhead."""
-    return math.sqrt(v.dot(v))

@@ -13,14 +13,16 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import GROUND_TRUTH, STATE_ESTIMATE
 from alight.systems.params import bounded
-from alight.systems.rotations import (quaternion_from_rotation_vector, quaternion_product,
-                                      rotation_matrix, heading)
+from alight.systems.rotations import (product_floats, quaternion_from_rotation_vector,
+                                      quaternion_heading)
 
 
-# the fields read every tick
+# the fields read and written every tick
 _P_WB, _Q_WB = GROUND_TRUTH.slice("p_WB"), GROUND_TRUTH.slice("q_WB")
-_P_EB, _V_EB = STATE_ESTIMATE.slice("p_EB"), STATE_ESTIMATE.slice("v_EB")
-_HEADING, _VALID = STATE_ESTIMATE.slice("heading").start, STATE_ESTIMATE.slice("valid").start
+_P_EB, _V_EB, _A_EB, _Q_EB, _VAR_PV = (STATE_ESTIMATE.slice(field) for field in (
+    "p_EB", "v_EB", "a_EB", "q_EB", "var_pv"))
+_STAMP, _HEADING, _HEADING_RATE, _VALID = (STATE_ESTIMATE.slice(field).start for field in (
+    "stamp", "heading", "heading_rate", "valid"))
 
 
 @dc.dataclass
@@ -45,28 +47,44 @@ class Mocap(LeafSystem):
         self._truth = self.DeclareVectorInputPort("ground_truth", GROUND_TRUTH.size)
         self._noise = self.DeclareVectorInputPort("noise", 6)
         self._xd = self.DeclareDiscreteState(STATE_ESTIMATE.size)
+        self._xd_group = int(self._xd)   # (pydrake converts a DiscreteStateIndex per call)
+        # the published fields that never change (the layout's defaults: q_OldNew, valid...)
+        self._constant = STATE_ESTIMATE.pack(
+            stamp=0.0, p_EB=0.0, v_EB=0.0, a_EB=0.0, heading=0.0, heading_rate=0.0, var_pv=0.0,
+            var_heading=self._attitude_std ** 2, frame_id=0.0, frame_counter=0.0,
+            p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         self.DeclareStateOutputPort("state_estimate", self._xd)
 
     def _update(self, context, discrete_state):
-        previous = context.get_discrete_state(self._xd).get_value()
+        # On the elements as Python floats (this runs at every tick): the operations, element by
+        # element, of the NumPy expressions they stand for.
+        previous = context.get_discrete_state().get_value(self._xd_group)
         truth = self._truth.Eval(context)
-        noise = self._noise.Eval(context)
-        p = truth[_P_WB] + self._p.position_noise_std * noise[:3]
-        q = quaternion_product(truth[_Q_WB], quaternion_from_rotation_vector(
-            self._attitude_std * noise[3:]))
+        noise = self._noise.Eval(context).tolist()
+        std = self._p.position_noise_std
+        p = [p_i + std * n_i for p_i, n_i in zip(truth[_P_WB].tolist(), noise[:3])]
+        q = product_floats(*truth[_Q_WB].tolist(), *quaternion_from_rotation_vector(
+            [self._attitude_std * n_i for n_i in noise[3:]]).tolist())
         first = previous[_VALID] < 0.5
         dt = self._p.period
-        raw_v = np.zeros(3) if first else (p - previous[_P_EB]) / dt
         alpha = 0.0 if first else self._p.velocity_filter
-        v = alpha * previous[_V_EB] + (1 - alpha) * raw_v
-        a = np.zeros(3) if first else (v - previous[_V_EB]) / dt
-        eta = heading(rotation_matrix(q))
+        if first:   # (alpha 0 and a zero raw velocity: v = 0 * previous + 1 * 0)
+            v = [alpha * v_i + (1 - alpha) * 0.0 for v_i in previous[_V_EB].tolist()]
+            a = [0.0] * 3
+        else:
+            raw_v = [(p_i - u_i) / dt for p_i, u_i in zip(p, previous[_P_EB].tolist())]
+            v_previous = previous[_V_EB].tolist()
+            v = [alpha * u_i + (1 - alpha) * r_i for u_i, r_i in zip(v_previous, raw_v)]
+            a = [(v_i - u_i) / dt for v_i, u_i in zip(v, v_previous)]
+        eta = quaternion_heading(*q)
         eta_rate = 0.0 if first else np.angle(np.exp(1j * (eta - previous[_HEADING]))) / dt
-        var_p = self._p.position_noise_std ** 2
+        var_p = std ** 2
         var_v = 2 * var_p / dt ** 2 * (1 - alpha) / (1 + alpha)
-        discrete_state.set_value(self._xd, STATE_ESTIMATE.pack(
-            stamp=context.get_time(), p_EB=p, v_EB=v, a_EB=a, q_EB=q, heading=eta,
-            heading_rate=eta_rate, var_pv=[var_p] * 3 + [var_v] * 3,
-            var_heading=self._attitude_std ** 2, frame_id=0.0,
-            frame_counter=0.0, p_OldNew=np.zeros(3), q_OldNew=[1, 0, 0, 0], valid=1.0))
+        # written by index into the fields that change (the others: `_constant`)
+        x = self._constant.copy()
+        x[_STAMP] = context.get_time()
+        x[_P_EB], x[_V_EB], x[_A_EB], x[_Q_EB] = p, v, a, q
+        x[_HEADING], x[_HEADING_RATE] = eta, eta_rate
+        x[_VAR_PV] = [var_p] * 3 + [var_v] * 3
+        discrete_state.set_value(self._xd_group, x)

@@ -37,10 +37,11 @@ class Rangefinder(SampledSensor):
         super().__init__(RANGE, params.period, noise_size=1)
         self._p = params
         self._boxes = target_boxes(params.target_model) if params.target_model else ()
+        self._min_cos_tilt = np.cos(np.radians(params.max_tilt))
 
     def measure(self, t, truth, noise, memory):
         cos_tilt = rotation_matrix(GROUND_TRUTH.get(truth, "q_WB"))[2, 2]
-        valid = cos_tilt > np.cos(np.radians(self._p.max_tilt)) and not in_windows(
+        valid = cos_tilt > self._min_cos_tilt and not in_windows(
             t, self._p.outages)
         surface, _ = ray_hit(truth, DOWN_B, self._boxes)
         distance = min(surface, 2 * self._p.max_range) + self._p.noise_std * noise[0]

@@ -4,6 +4,7 @@ the ground plane z = 0 and the target vehicle's collision boxes (its platform an
 target's SDF, posed by the ground truth's p_WT, q_WT when `target_present`).
 """
 import functools
+import math
 
 import numpy as np
 from pydrake.geometry import Box, SceneGraph
@@ -55,11 +56,14 @@ def ray_hit(truth: np.ndarray, d_B: np.ndarray, boxes: tuple) -> tuple[float, bo
 
 def _box_entry(p: np.ndarray, d: np.ndarray, half: np.ndarray) -> float:
     """Slab test: the ray p + s d (s >= 0) against the box |x| <= half (its own frame)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, b = (-half - p) / d, (half - p) / d
-    parallel = np.abs(d) < 1e-12
-    if np.any(parallel & (np.abs(p) > half)):
-        return np.inf
-    near = np.where(parallel, -np.inf, np.minimum(a, b)).max()
-    far = np.where(parallel, np.inf, np.maximum(a, b)).min()
-    return float(max(near, 0.0)) if far >= max(near, 0.0) else np.inf
+    # On the three axes as Python floats (this runs at every rangefinder sample): NumPy's
+    # element-wise operations, without its per-call overhead and its division warnings.
+    near, far = -math.inf, math.inf
+    for p_i, d_i, half_i in zip(p.tolist(), d.tolist(), half.tolist()):
+        if abs(d_i) < 1e-12:   # parallel to this slab: inside it or never
+            if abs(p_i) > half_i:
+                return math.inf
+            continue
+        a, b = (-half_i - p_i) / d_i, (half_i - p_i) / d_i
+        near, far = max(near, min(a, b)), min(far, max(a, b))
+    return max(near, 0.0) if far >= max(near, 0.0) else math.inf

@@ -153,7 +153,17 @@ class TargetMotion(LeafSystem):
             self._noise = self.DeclareVectorInputPort("noise", NOISE_SIZE)
             # state: x, y, heading, speed, turn rate, pull time left, pull side, time of update
             initial = np.array([*self._p0, self._psi0, field_test.mean_speed, 0.0, 0.0, 1.0, 0.0])
+            # The per-update arithmetic runs on Python floats, its constant factors computed
+            # once (the same operations and values: np.cos, np.radians... on the same numbers).
+            self._lane_axis = (float(np.cos(self._psi0)), float(np.sin(self._psi0)))
+            self._pull_turn_rate = float(np.radians(field_test.pull_turn_rate))
+            dt = field_test.period
+            self._speed_drive = field_test.speed_std \
+                * float(np.sqrt(2 * dt / field_test.speed_time))
+            self._rate_drive = float(np.radians(field_test.turn_rate_std)) \
+                * float(np.sqrt(2 * dt / field_test.turn_time))
             self._state = self.DeclareDiscreteState(initial)
+            self._state_group = int(self._state)   # (pydrake converts the index per call)
             self._coefficients = self.DeclareDiscreteState(self._field_coefficients(initial))
             self.DeclarePeriodicDiscreteUpdateEvent(field_test.period, 0.0, self._field_update)
             self.DeclareStateOutputPort("path_coefficients", self._coefficients)
@@ -180,50 +190,53 @@ class TargetMotion(LeafSystem):
                               v * kappa])
 
     # --- the random field-test path -----------------------------------------------------------
-    def _field_output(self, context, t):
-        x, y, psi, speed, _, _, _, t_k = context.get_discrete_state(self._state).get_value()
+    def _field_state(self, context) -> list[float]:
+        """x, y, heading, speed, turn rate, pull time left, pull side, time of update."""
+        return context.get_discrete_state().get_value(self._state_group).tolist()
+
+    def _field_output(self, context, t) -> list[float]:
+        x, y, psi, speed, _, _, _, t_k = state = self._field_state(context)
         v = speed * _ramp(t, self._field.ramp_time)
-        omega = self._omega(context.get_discrete_state(self._state).get_value())
+        omega = self._omega(state)
         dt = t - t_k
-        return np.array([x + v * np.cos(psi) * dt, y + v * np.sin(psi) * dt, psi + omega * dt,
-                         v * np.cos(psi), v * np.sin(psi), omega])
+        cos_psi, sin_psi = float(np.cos(psi)), float(np.sin(psi))
+        return [x + v * cos_psi * dt, y + v * sin_psi * dt, psi + omega * dt, v * cos_psi,
+                v * sin_psi, omega]
 
     def _omega(self, state) -> float:
         """Turn rate until the next update: the wander plus the pull or the lane keeping."""
         x, y, psi, _, rate, pull_left, side, _ = state
-        steer = side * np.radians(self._field.pull_turn_rate) if pull_left > 0 \
-            else self._lane_rate(x, y, psi)
+        steer = side * self._pull_turn_rate if pull_left > 0 else self._lane_rate(x, y, psi)
         return rate + steer
 
     def _field_coefficients(self, state) -> np.ndarray:
         """[a, b, c] with `_field_output`(t) = a + b t + c t^2 from the update at t_k until the
         next: the ramp's speed (t / ramp_time) makes it quadratic while t_k is in the ramp."""
-        x, y, psi, speed, _, _, _, t_k = state
+        x, y, psi, speed, _, _, _, t_k = (float(e) for e in state)
         omega = self._omega(state)
-        direction = np.array([np.cos(psi), np.sin(psi)])
-        a = np.array([x, y, psi, 0.0, 0.0, omega])
-        b = np.zeros(STATE_SIZE)
-        c = np.zeros(STATE_SIZE)
-        a[2], b[2] = psi - omega * t_k, omega
+        cos_psi, sin_psi = float(np.cos(psi)), float(np.sin(psi))
+        heading = [psi - omega * t_k, omega, 0.0]     # a, b, c of the heading
         ramp = self._field.ramp_time
         if ramp > 0 and t_k < ramp - 1e-9:       # v(t) = speed t / ramp
-            slope = speed / ramp * direction
-            b[0:2] = -slope * t_k                # p + slope t (t - t_k)
-            c[0:2] = slope
-            b[3:5] = slope
+            slope_x, slope_y = speed / ramp * cos_psi, speed / ramp * sin_psi
+            # p + slope t (t - t_k), velocity slope t
+            a = [x, y, heading[0], 0.0, 0.0, omega]
+            b = [-slope_x * t_k, -slope_y * t_k, heading[1], slope_x, slope_y, 0.0]
+            c = [slope_x, slope_y, heading[2], 0.0, 0.0, 0.0]
         else:                                    # v(t) = speed
-            velocity = speed * direction
-            a[0:2] = a[0:2] - velocity * t_k     # p + velocity (t - t_k)
-            b[0:2] = velocity
-            a[3:5] = velocity
-        return np.concatenate([a, b, c])
+            v_x, v_y = speed * cos_psi, speed * sin_psi
+            # p + velocity (t - t_k), velocity constant
+            a = [x - v_x * t_k, y - v_y * t_k, heading[0], v_x, v_y, omega]
+            b = [v_x, v_y, heading[1], 0.0, 0.0, 0.0]
+            c = [0.0] * STATE_SIZE
+        return np.array(a + b + c)
 
     def _lane_rate(self, x, y, psi) -> float:
         """Turn rate steering the heading toward the lane point `lane_lookahead` ahead."""
         f = self._field
         if f.lane_lookahead <= 0:
             return 0.0
-        c, s = np.cos(self._psi0), np.sin(self._psi0)
+        c, s = self._lane_axis
         dx, dy = x - self._p0[0], y - self._p0[1]
         cross = -s * dx + c * dy
         desired = self._psi0 - np.arctan2(cross, f.lane_lookahead)
@@ -233,29 +246,26 @@ class TargetMotion(LeafSystem):
     def _field_update(self, context, discrete_state):
         f = self._field
         t = context.get_time()
-        x, y, psi, vx, vy, omega = self._field_output(context, t)
-        _, _, _, speed, rate, pull_left, side, _ = context.get_discrete_state(
-            self._state).get_value()
-        n = self._noise.Eval(context)
+        x, y, psi, _, _, _ = self._field_output(context, t)
+        _, _, _, speed, rate, pull_left, side, _ = self._field_state(context)
+        n = self._noise.Eval(context).tolist()
         dt = f.period
-        speed += (f.mean_speed - speed) * dt / f.speed_time \
-            + f.speed_std * np.sqrt(2 * dt / f.speed_time) * n[0]
-        speed = float(np.clip(speed, f.min_speed, f.max_speed))
-        rate += -rate * dt / f.turn_time \
-            + np.radians(f.turn_rate_std) * np.sqrt(2 * dt / f.turn_time) * n[1]
+        speed += (f.mean_speed - speed) * dt / f.speed_time + self._speed_drive * n[0]
+        speed = min(max(speed, f.min_speed), f.max_speed)   # (np.clip's order)
+        rate += -rate * dt / f.turn_time + self._rate_drive * n[1]
         pull_left -= dt
         scheduled = any(t <= tp < t + dt for tp in f.pull_times)
         random_pull = f.pull_rate > 0 and n[2] > self._pull_threshold
         if pull_left <= 0 and (scheduled or random_pull):
             pull_left, side = f.pull_duration, 1.0 if n[3] >= 0 else -1.0
         # Integrate over the coming period with the current speed and rate (see _field_output).
-        state = np.array([x, y, psi, speed, rate, pull_left, side, t])
-        discrete_state.set_value(self._state, state)
+        state = [x, y, psi, speed, rate, pull_left, side, t]
+        discrete_state.set_value(self._state_group, np.array(state))
         discrete_state.set_value(self._coefficients, self._field_coefficients(state))
 
 
 def _ramp(t: float, ramp_time: float) -> float:
-    return 1.0 if ramp_time <= 0 else float(np.clip(t / ramp_time, 0.0, 1.0))
+    return 1.0 if ramp_time <= 0 else min(max(t / ramp_time, 0.0), 1.0)   # (np.clip's order)
 
 
 def path_evaluator() -> TrajectoryAffineSystem:

@@ -110,11 +110,12 @@ class PlatformState(LeafSystem):
                                      prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def _calc(self, context, output):
+        # written in place: [q_WT, p_WT] then V_WT's coefficients [w_WT, v_WT]
         X_WT = self._poses.Eval(context)[self._index]
-        V_WT = self._velocities.Eval(context)[self._index]
-        output.SetFromVector(np.concatenate([
-            X_WT.rotation().ToQuaternion().wxyz(), X_WT.translation(), V_WT.rotational(),
-            V_WT.translational()]))
+        y = output.get_mutable_value()
+        y[:4] = X_WT.rotation().ToQuaternion().wxyz()
+        y[4:7] = X_WT.translation()
+        y[7:] = self._velocities.Eval(context)[self._index].get_coeffs()
 
 
 def _abstract_list(value):
