@@ -273,7 +273,8 @@ class ForceController(Controller):
         v = STATE_ESTIMATE.get(estimate, "v_EB")
         q = STATE_ESTIMATE.get(estimate, "q_EB")
         last = self._last.Eval(context)
-        if FC_COMMAND.get(last, "mode") == CommandMode.RATES_THRUST and command_is_usable(last):
+        if float(FC_COMMAND.get(last, "mode")) == CommandMode.RATES_THRUST \
+                and command_is_usable(last):
             q = quaternion_product(q, quaternion_from_rotation_vector(
                 FC_COMMAND.get(last, "w_D") * dt))
         R = rotation_matrix(q)

@@ -83,7 +83,8 @@ class LandingRequests(LeafSystem):
     def _calc_tracker_request(self, context, output):
         status = self._status.Eval(context)
         mode = self._mode(context)
-        home = mode == Mode.LANDED and MISSION_STATUS.get(status, "reason") == Reason.ON_THE_GROUND
+        home = mode == Mode.LANDED \
+            and float(MISSION_STATUS.get(status, "reason")) == Reason.ON_THE_GROUND
         output.SetFromVector([MISSION_STATUS.get(status, "transitions") + 1.0,
                               self._tracker[Mode.LANDING_HOME] if home else self._tracker[mode]])
 
