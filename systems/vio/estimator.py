@@ -19,6 +19,7 @@ import bisect
 import dataclasses as dc
 import enum
 import itertools
+import math
 
 import gtsam
 import numpy as np
@@ -97,6 +98,7 @@ class VioEstimator:
         self._pim_out = None   # pre-integration from the last keyframe to the newest sample
         self._t_out = -np.inf  # end of what _pim_out covers
         self._last_frame = -np.inf
+        self._g = np.array([0.0, 0.0, params.backend.gravity])  # -gravity in E (z up) [m/s^2]
         # p_EO: the sum of the keyframes' corrections of the propagated position (STATE_ESTIMATE)
         self.correction = np.zeros(3)
 
@@ -155,7 +157,7 @@ class VioEstimator:
             return
         window = self._window
         observations = self._observations(keypoints)
-        usable = [o for o in observations if window.knows(o.track) or np.isfinite(o.u_virtual)]
+        usable = [o for o in observations if window.knows(o.track) or math.isfinite(o.u_virtual)]
         known = sum(window.knows(o.track) for o in usable)
         # the overlap counts against what a keyframe can hold (the back end's max_landmarks)
         if not is_keyframe(self.p.frontend, frame.stamp, window.state.t, known,
@@ -192,8 +194,9 @@ class VioEstimator:
         K = np.asarray(self._calibration["K"], float)
         u_virtual, p_C = virtual_stereo(keypoints.uv, keypoints.depth, K,
                                         float(self._calibration["baseline"]))
-        return [Observation(int(i), uv, float(uv_v), pc) for i, uv, uv_v, pc
-                in zip(keypoints.ids, keypoints.uv, u_virtual, p_C)]
+        # (tolist: the ids and u as Python ints and floats at once, not one conversion each)
+        return [Observation(i, uv, uv_v, pc) for i, uv, uv_v, pc
+                in zip(keypoints.ids.tolist(), keypoints.uv, u_virtual.tolist(), p_C)]
 
     def _initialize(self, stamp: float, keypoints: Keypoints) -> None:
         rest = [s for s in self._samples if stamp - self.p.init_duration <= s[0] <= stamp]
@@ -212,12 +215,12 @@ class VioEstimator:
         eta = heading(rotation_matrix(q))
         q = quaternion_product(np.array([np.cos(eta / 2), 0, 0, -np.sin(eta / 2)]), q)
         R_WB = rotation_matrix(q)
-        b_a = f_mean - R_WB.T @ np.array([0.0, 0.0, self.p.backend.gravity])
+        b_a = f_mean - R_WB.T @ self._g
         nav = gtsam.NavState(gtsam.Rot3(R_WB), np.asarray(self.p.initial_position, float),
                              np.zeros(3))
         bias = gtsam.imuBias.ConstantBias(b_a, w.mean(axis=0))
         observations = self._observations(keypoints)
-        if sum(np.isfinite(o.u_virtual) for o in observations) < self.p.min_features:
+        if sum(math.isfinite(o.u_virtual) for o in observations) < self.p.min_features:
             return
         self._window.start(stamp, nav, bias, observations)
         self.status = VioStatus.TRACKING
@@ -282,8 +285,8 @@ class VioEstimator:
         R = attitude.matrix()
         b_a, b_g = state.bias.accelerometer(), state.bias.gyroscope()
         f, w = (self._samples[-1][1], self._samples[-1][2]) if self._samples else (
-            R.T @ [0, 0, self.p.backend.gravity] + b_a, b_g)
-        a = R @ (f - b_a) - np.array([0.0, 0.0, self.p.backend.gravity])
+            R.T @ self._g + b_a, b_g)
+        a = R @ (f - b_a) - self._g
         q = attitude.toQuaternion()
         return Estimate(self._t_out, nav.position(), nav.velocity(),
                         np.array([q.w(), q.x(), q.y(), q.z()]), a, w - b_g, b_g, b_a, var_p,
