@@ -142,6 +142,22 @@ GROUND_TRUTH = VectorLayout("ground_truth", [
               **{field: 0.0 for field, _ in CONTACTS.fields}})
 
 
+class _ImuStore:
+    """Arrays that successive `ImuSamples.appended` buffers view: each new sample goes into the
+    next free row (`end`), so appending copies one sample, not the buffer. Rows below `end` are
+    never written again; when the rows run out, the kept samples move to a new store (the old
+    one stays as the buffers viewing it saw it). The buffers view `readonly`, read-only views of
+    the arrays written (a slice of them is read-only as made, which is faster than marking it)."""
+
+    def __init__(self, rows: int):
+        self.arrays = (np.zeros(rows, np.int64), np.zeros(rows), np.zeros((rows, 3)),
+                       np.zeros((rows, 3)))                # seq, t, accel, gyro
+        self.readonly = tuple(array.view() for array in self.arrays)
+        for view in self.readonly:
+            view.flags.writeable = False
+        self.end = 0  # rows in use
+
+
 @dc.dataclass(frozen=True)
 class ImuSamples:
     """The `imu` port value: the most recent IMU samples, oldest first, each with its own sequence
@@ -149,39 +165,65 @@ class ImuSamples:
     `newer_than(seq)`: every sample is seen exactly once as long as it reads at least once per
     buffer length (`capacity / rate`). A gap in `seq` means samples were lost upstream.
 
-    accel: specific force in B [m/s^2]; gyro: angular velocity of B in B [rad/s].
+    accel: specific force in B [m/s^2]; gyro: angular velocity of B in B [rad/s]. `seq` increases
+    from each sample to the next (every producer numbers them so).
     """
     seq: np.ndarray    # (N,) int64
     t: np.ndarray      # (N,) s
     accel: np.ndarray  # (N, 3)
     gyro: np.ndarray   # (N, 3)
+    # the _ImuStore whose rows [end - N, end) these arrays view, if `appended` made them
+    _store: _ImuStore | None = dc.field(default=None, repr=False, compare=False)
+    _end: int = dc.field(default=0, repr=False, compare=False)
 
     @staticmethod
     def empty() -> "ImuSamples":
         return ImuSamples(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
 
     def newer_than(self, seq: int) -> "ImuSamples":
-        keep = self.seq > seq
-        return ImuSamples(self.seq[keep], self.t[keep], self.accel[keep], self.gyro[keep])
+        first = int(self.seq.searchsorted(seq, side="right"))  # seq increases
+        if first == 0:
+            return self
+        return ImuSamples(self.seq[first:], self.t[first:], self.accel[first:], self.gyro[first:])
 
     def appended(self, seq: int, t: float, accel, gyro, capacity: int) -> "ImuSamples":
-        """A new buffer with one more sample, keeping at most `capacity` samples."""
-        return ImuSamples(np.append(self.seq, seq)[-capacity:], np.append(self.t, t)[-capacity:],
-                          np.vstack([self.accel, accel])[-capacity:],
-                          np.vstack([self.gyro, gyro])[-capacity:])
+        """A new buffer with one more sample, keeping at most `capacity` samples.
+
+        One writer at a time: the sample goes into the store row after this buffer's last unless
+        another buffer was appended to this one already (a cloned context stepping on), in which
+        case, as when the store is full or this buffer was not made here, the kept samples move to
+        a new store."""
+        keep = min(len(self), capacity - 1)  # samples of this buffer in the new one
+        store = self._store
+        if store is None or store.end != self._end or store.end == len(store.arrays[0]):
+            store = _ImuStore(2 * capacity)
+            for new, old in zip(store.arrays, (self.seq, self.t, self.accel, self.gyro)):
+                new[:keep] = old[len(old) - keep:]
+            store.end = keep
+        end = store.end
+        seqs, ts, accels, gyros = store.arrays
+        seqs[end], ts[end], accels[end], gyros[end] = seq, t, accel, gyro
+        store.end = end = end + 1
+        rows = slice(end - keep - 1, end)
+        seqs, ts, accels, gyros = store.readonly
+        return ImuSamples(seqs[rows], ts[rows], accels[rows], gyros[rows], store, end)
 
     def __len__(self) -> int:
         return len(self.seq)
 
     def __post_init__(self):
         for array in (self.seq, self.t, self.accel, self.gyro):
-            if isinstance(array, np.ndarray):
+            if isinstance(array, np.ndarray) and array.flags.writeable:
                 array.flags.writeable = False  # immutable, so that copies may share it
 
     def __deepcopy__(self, memo) -> "ImuSamples":
         """Itself: a frozen value with read-only arrays. Drake clones abstract port and state
         values (copy.deepcopy) several times per IMU sample; sharing makes that free."""
         return self
+
+    def __reduce__(self):
+        """Pickled as its arrays alone (not the store they view)."""
+        return ImuSamples, (self.seq, self.t, self.accel, self.gyro)
 
 
 @dc.dataclass(frozen=True)

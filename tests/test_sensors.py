@@ -80,3 +80,29 @@ def test_same_seed_same_run_other_seed_other_noise(vehicle_config, tmp_path):
     c = fly_profile(vehicle_config, short, seed=12, run_dir=tmp_path / "c")["imu"]
     np.testing.assert_array_equal(a.to_numpy(), b.to_numpy())
     assert not np.allclose(a["accel_x"], c["accel_x"])
+
+
+def test_imu_samples_appended_is_a_frozen_value_even_when_two_buffers_append_to_one():
+    """`appended` writes into a store its buffers view: the arrays are those of appending to
+    copies, read-only, and a buffer appended to twice (a cloned context) leaves both intact."""
+    from alight.systems.boundary import ImuSamples
+    rng = np.random.default_rng(0)
+    capacity, samples, plain = 5, ImuSamples.empty(), []
+    for seq in range(23):  # through several stores
+        t, accel, gyro = seq * 0.004, rng.normal(size=3), rng.normal(size=3)
+        samples = samples.appended(seq, t, accel, gyro, capacity)
+        plain = (plain + [(seq, t, accel, gyro)])[-capacity:]
+        assert np.array_equal(samples.seq, [p[0] for p in plain])
+        assert samples.seq.dtype == np.int64
+        assert np.array_equal(samples.t, [p[1] for p in plain])
+        assert np.array_equal(samples.accel, [p[2] for p in plain])
+        assert np.array_equal(samples.gyro, [p[3] for p in plain])
+        assert not any(a.flags.writeable for a in (samples.seq, samples.t, samples.accel,
+                                                   samples.gyro))
+    first = samples.appended(23, 1.0, np.ones(3), np.ones(3), capacity)
+    second = samples.appended(23, 2.0, np.full(3, 2.0), np.full(3, 2.0), capacity)
+    assert list(first.t[-2:]) == [22 * 0.004, 1.0] and list(second.t[-2:]) == [22 * 0.004, 2.0]
+    assert np.array_equal(first.accel[-1], np.ones(3)) and np.array_equal(samples.seq,
+                                                                          np.arange(18, 23))
+    assert list(samples.newer_than(20).seq) == [21, 22] and samples.newer_than(-1) is samples
+    assert len(samples.newer_than(22)) == 0

@@ -19,6 +19,7 @@ import bisect
 import dataclasses as dc
 import enum
 import itertools
+import math
 
 import gtsam
 import numpy as np
@@ -30,6 +31,12 @@ from alight.systems.timing import ComputeTimer
 from alight.systems.vio.backend import (BackendParams, DivergedError, Observation, SlidingWindow)
 from alight.systems.vio.frontend import (FrontendParams, KltTracker, Keypoints, is_keyframe,
                                          keypoints_of, virtual_stereo)
+
+
+def _diagonal_blocks(M: np.ndarray) -> np.ndarray:
+    """The first three 3x3 diagonal blocks of the contiguous matrix M, as a (3, 3, 3) view."""
+    s0, s1 = M.strides
+    return np.ndarray((3, 3, 3), M.dtype, M, 0, (3 * (s0 + s1), s0, s1))
 
 
 class VioStatus(enum.IntEnum):
@@ -91,6 +98,7 @@ class VioEstimator:
         self._pim_out = None   # pre-integration from the last keyframe to the newest sample
         self._t_out = -np.inf  # end of what _pim_out covers
         self._last_frame = -np.inf
+        self._g = np.array([0.0, 0.0, params.backend.gravity])  # -gravity in E (z up) [m/s^2]
         # p_EO: the sum of the keyframes' corrections of the propagated position (STATE_ESTIMATE)
         self.correction = np.zeros(3)
 
@@ -100,8 +108,8 @@ class VioEstimator:
 
     # --- IMU ------------------------------------------------------------------------------
     def add_imu(self, samples: ImuSamples) -> None:
-        for t, f, w in zip(samples.t, samples.accel, samples.gyro):
-            self._samples.append((float(t), np.asarray(f, float), np.asarray(w, float)))
+        self._samples += zip(samples.t.tolist(), np.asarray(samples.accel, float),
+                             np.asarray(samples.gyro, float))
         if self._pim_out is None:  # not initialized: keep what initialization needs
             horizon = self._samples[-1][0] - 2 * self.p.init_duration if self._samples else 0.0
             self._samples = [s for s in self._samples if s[0] >= horizon]
@@ -114,10 +122,13 @@ class VioEstimator:
     def _integrate(self, pim, t_a: float, t_b: float) -> None:
         """Each sample holds for one period from its stamp; integrates the part in [t_a, t_b)."""
         # the samples (in time order) that end before t_a, by a margin far above rounding, add
-        # nothing: skipped without a look (IMU-only, the list grows until the next keyframe)
-        first = bisect.bisect_left(self._samples, t_a - self.p.period - 1e-6, key=lambda s: s[0])
+        # nothing: skipped without a look (IMU-only, the list grows until the next keyframe).
+        # Searched with the 1-tuple (t,): a sample (t, f, w) compares by its stamp alone, and one
+        # stamped t exactly sorts after it (the shorter tuple), as bisect_left on the stamps.
+        period = self.p.period
+        first = bisect.bisect_left(self._samples, (t_a - period - 1e-6,))
         for t, f, w in itertools.islice(self._samples, first, None):
-            dt = min(t + self.p.period, t_b) - max(t, t_a)
+            dt = min(t + period, t_b) - max(t, t_a)
             if dt > 1e-9:
                 pim.integrateMeasurement(f, w, dt)
 
@@ -146,7 +157,7 @@ class VioEstimator:
             return
         window = self._window
         observations = self._observations(keypoints)
-        usable = [o for o in observations if window.knows(o.track) or np.isfinite(o.u_virtual)]
+        usable = [o for o in observations if window.knows(o.track) or math.isfinite(o.u_virtual)]
         known = sum(window.knows(o.track) for o in usable)
         # the overlap counts against what a keyframe can hold (the back end's max_landmarks)
         if not is_keyframe(self.p.frontend, frame.stamp, window.state.t, known,
@@ -183,8 +194,9 @@ class VioEstimator:
         K = np.asarray(self._calibration["K"], float)
         u_virtual, p_C = virtual_stereo(keypoints.uv, keypoints.depth, K,
                                         float(self._calibration["baseline"]))
-        return [Observation(int(i), uv, float(uv_v), pc) for i, uv, uv_v, pc
-                in zip(keypoints.ids, keypoints.uv, u_virtual, p_C)]
+        # (tolist: the ids and u as Python ints and floats at once, not one conversion each)
+        return [Observation(i, uv, uv_v, pc) for i, uv, uv_v, pc
+                in zip(keypoints.ids.tolist(), keypoints.uv, u_virtual.tolist(), p_C)]
 
     def _initialize(self, stamp: float, keypoints: Keypoints) -> None:
         rest = [s for s in self._samples if stamp - self.p.init_duration <= s[0] <= stamp]
@@ -203,12 +215,12 @@ class VioEstimator:
         eta = heading(rotation_matrix(q))
         q = quaternion_product(np.array([np.cos(eta / 2), 0, 0, -np.sin(eta / 2)]), q)
         R_WB = rotation_matrix(q)
-        b_a = f_mean - R_WB.T @ np.array([0.0, 0.0, self.p.backend.gravity])
+        b_a = f_mean - R_WB.T @ self._g
         nav = gtsam.NavState(gtsam.Rot3(R_WB), np.asarray(self.p.initial_position, float),
                              np.zeros(3))
         bias = gtsam.imuBias.ConstantBias(b_a, w.mean(axis=0))
         observations = self._observations(keypoints)
-        if sum(np.isfinite(o.u_virtual) for o in observations) < self.p.min_features:
+        if sum(math.isfinite(o.u_virtual) for o in observations) < self.p.min_features:
             return
         self._window.start(stamp, nav, bias, observations)
         self.status = VioStatus.TRACKING
@@ -253,13 +265,14 @@ class VioEstimator:
         pre-integrated IMU noise, and gravity mis-compensated by the attitude error."""
         R, var_p0, var_rot0, var_v0 = state.variances_W
         dt = pim.deltaTij()
-        preint = pim.preintMeasCov()
+        # R P R^T of the pre-integrated rotation, position and velocity blocks P at once: one
+        # batched matmul makes the same BLAS call per block as R @ P @ R.T does, in 2 calls, not 6
+        rotated = (R @ _diagonal_blocks(pim.preintMeasCov()) @ R.T).diagonal(axis1=1, axis2=2)
         tilt = var_rot0[0] + var_rot0[1]
         g = self.p.backend.gravity
-        var_p = var_p0 + var_v0 * dt ** 2 \
-            + (R @ preint[3:6, 3:6] @ R.T).diagonal() + tilt * (0.5 * g * dt ** 2) ** 2
-        var_v = var_v0 + (R @ preint[6:9, 6:9] @ R.T).diagonal() + tilt * (g * dt) ** 2
-        var_rot = var_rot0 + (R @ preint[:3, :3] @ R.T).diagonal()
+        var_p = var_p0 + var_v0 * dt ** 2 + rotated[1] + tilt * (0.5 * g * dt ** 2) ** 2
+        var_v = var_v0 + rotated[2] + tilt * (g * dt) ** 2
+        var_rot = var_rot0 + rotated[0]
         return var_p, var_rot, var_v
 
     def estimate(self) -> Estimate | None:
@@ -268,12 +281,13 @@ class VioEstimator:
             return None
         state = self._window.state
         var_p, var_rot, var_v = self._propagated_covariance(state, self._pim_out)
-        R = nav.attitude().matrix()
+        attitude = nav.attitude()
+        R = attitude.matrix()
         b_a, b_g = state.bias.accelerometer(), state.bias.gyroscope()
         f, w = (self._samples[-1][1], self._samples[-1][2]) if self._samples else (
-            R.T @ [0, 0, self.p.backend.gravity] + b_a, b_g)
-        a = R @ (f - b_a) - np.array([0.0, 0.0, self.p.backend.gravity])
-        q = nav.attitude().toQuaternion()
+            R.T @ self._g + b_a, b_g)
+        a = R @ (f - b_a) - self._g
+        q = attitude.toQuaternion()
         return Estimate(self._t_out, nav.position(), nav.velocity(),
                         np.array([q.w(), q.x(), q.y(), q.z()]), a, w - b_g, b_g, b_a, var_p,
                         var_rot, var_v)

@@ -28,6 +28,18 @@ VIO_ODOMETRY = VectorLayout("vio_odometry", [
 
 VIO_FRAME_ID = 1.0  # the `frame_id` of the VIO's estimator frame in STATE_ESTIMATE (mocap is 0)
 _NONE_USED = np.array([-1.0, -np.inf])  # no IMU sample (seq) and no camera frame (stamp) used yet
+_NO_ESTIMATE = (VioStatus.INITIALIZING, VioStatus.LOST)  # reported invalid (enum members, looked
+# up once: a class attribute lookup of an enum member is slow in Python 3.11)
+_ODOMETRY_STATUS = VIO_ODOMETRY.slice("status").start
+# The STATE_ESTIMATE fields set at every tick, written by slice into a preallocated vector; p_EB,
+# v_EB, a_EB and q_EB are adjacent (`_KINEMATICS`), the ones that must be finite.
+_FIELD = {field: STATE_ESTIMATE.slice(field) for field in (
+    "stamp", "p_EB", "v_EB", "a_EB", "q_EB", "heading", "heading_rate", "var_pv", "var_heading",
+    "p_EO")}
+_KINEMATICS = slice(_FIELD["p_EB"].start, _FIELD["q_EB"].stop)
+assert _KINEMATICS.stop - _KINEMATICS.start == 13, "p_EB, v_EB, a_EB, q_EB are not adjacent"
+_VAR_P = slice(_FIELD["var_pv"].start, _FIELD["var_pv"].start + 3)
+_VAR_V = slice(_FIELD["var_pv"].start + 3, _FIELD["var_pv"].stop)
 
 
 class VisualInertialOdometry(LeafSystem):
@@ -51,6 +63,12 @@ class VisualInertialOdometry(LeafSystem):
         # the last IMU sample's seq and camera frame's stamp used (discrete state: Drake copies
         # abstract state with copy.deepcopy at every update)
         self._last = self.DeclareDiscreteState(_NONE_USED)
+        # the valid state estimate's fields that never change; the rest is written every tick
+        # (into this one array: the state takes a copy)
+        self._valid_estimate = STATE_ESTIMATE.pack(
+            stamp=0.0, p_EB=np.zeros(3), v_EB=np.zeros(3), a_EB=np.zeros(3), heading=0.0,
+            heading_rate=0.0, var_pv=np.zeros(6), var_heading=0.0, frame_id=VIO_FRAME_ID,
+            frame_counter=0.0, p_OldNew=np.zeros(3), q_OldNew=[1.0, 0.0, 0.0, 0.0], valid=1.0)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._reset)
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
         self.DeclareStateOutputPort("state_estimate", self._estimate)
@@ -71,37 +89,42 @@ class VisualInertialOdometry(LeafSystem):
         if len(samples):
             self.estimator.add_imu(samples)
             seq = int(samples.seq[-1])
-        new_frame = frame.valid and frame.stamp > stamp
+        new_frame = frame.stamp > stamp and frame.valid  # (the cheap test first)
         if new_frame:
             frame_start = timer.clock()
             self.estimator.add_frame(frame)
             frame_seconds = timer.clock() - frame_start
             stamp = frame.stamp
         state.get_mutable_discrete_state(self._last).set_value([seq, stamp])
-        previous = context.get_discrete_state(self._estimate).get_value()
         estimate = self.estimator.estimate()
         state.get_mutable_discrete_state(self._estimate).set_value(
-            self._state_estimate(context.get_time(), estimate, previous))
+            self._state_estimate(context.get_time(), estimate))
         odometry = context.get_discrete_state(self._odometry).get_value()
-        if new_frame or VIO_ODOMETRY.get(odometry, "status") != self.estimator.status:
+        # (NumPy compares a float with an IntEnum member 50x slower than with a float)
+        if new_frame or odometry[_ODOMETRY_STATUS] != float(self.estimator.status):
             state.get_mutable_discrete_state(self._odometry).set_value(
                 self._odometry_vector(estimate))
         timer.record(context.get_time(), "propagation", timer.clock() - start - frame_seconds)
 
-    def _state_estimate(self, t: float, estimate, previous) -> np.ndarray:
-        status = self.estimator.status
-        finite = estimate is not None and np.isfinite(
-            np.concatenate([estimate.p, estimate.v, estimate.q, estimate.a])).all()
-        if not finite or status in (VioStatus.INITIALIZING, VioStatus.LOST):
+    def _state_estimate(self, t: float, estimate) -> np.ndarray:
+        if estimate is None or self.estimator.status in _NO_ESTIMATE:
+            return _invalid_estimate(stamp=t)
+        vector = self._valid_estimate
+        vector[_FIELD["p_EB"]] = estimate.p
+        vector[_FIELD["v_EB"]] = estimate.v
+        vector[_FIELD["a_EB"]] = estimate.a
+        vector[_FIELD["q_EB"]] = estimate.q
+        if not np.isfinite(vector[_KINEMATICS]).all():
             return _invalid_estimate(stamp=t)
         R = rotation_matrix(estimate.q)
-        return STATE_ESTIMATE.pack(
-            stamp=estimate.stamp, p_EB=estimate.p, v_EB=estimate.v, a_EB=estimate.a,
-            q_EB=estimate.q, heading=heading(R), heading_rate=(R @ estimate.w)[2],
-            var_pv=np.concatenate([estimate.var_p, estimate.var_v]),
-            var_heading=estimate.var_rot[2], frame_id=VIO_FRAME_ID, frame_counter=0.0,
-            p_OldNew=np.zeros(3), q_OldNew=[1.0, 0.0, 0.0, 0.0], valid=1.0,
-            p_EO=self.estimator.correction)
+        vector[_FIELD["stamp"]] = estimate.stamp
+        vector[_FIELD["heading"]] = heading(R)
+        vector[_FIELD["heading_rate"]] = (R @ estimate.w)[2]
+        vector[_VAR_P] = estimate.var_p
+        vector[_VAR_V] = estimate.var_v
+        vector[_FIELD["var_heading"]] = estimate.var_rot[2]
+        vector[_FIELD["p_EO"]] = self.estimator.correction
+        return vector
 
     def _odometry_vector(self, estimate) -> np.ndarray:
         e, est = self.estimator, estimate
