@@ -117,8 +117,9 @@ def _stable_order(keys: np.ndarray, bound: int) -> np.ndarray:
 def _bounds(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The lower and upper corners (M, 3) of boxes (M, >= 5: x0, y0, x1, y1, height; standing on
     z = 0)."""
-    return (np.column_stack([boxes[:, :2], np.zeros(len(boxes))]),
-            np.column_stack([boxes[:, 2:4], boxes[:, 4]]))
+    lo = np.zeros((len(boxes), 3))
+    lo[:, :2] = boxes[:, :2]
+    return lo, boxes[:, 2:5]  # (x1, y1, height: a view, no copy)
 
 
 def _slab(c: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
@@ -149,7 +150,7 @@ def occluded(c: np.ndarray, p: np.ndarray, boxes: np.ndarray, own: np.ndarray,
     other = j != own[i]
     i, j = i[other], j[other]
     lo, hi = _bounds(boxes)
-    entry, exit_ = _slab(c, (p - c).take(i, axis=0), lo.take(j, axis=0), hi.take(j, axis=0))
+    entry, exit_ = _slab(c, p.take(i, axis=0) - c, lo.take(j, axis=0), hi.take(j, axis=0))
     hidden[i[(exit_ >= np.maximum(entry, 0.0)) & (entry < 1.0 - 1e-9)]] = True
     return hidden
 
@@ -177,6 +178,19 @@ def ray_depth(c: np.ndarray, d: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         t_box = np.where(exit_ >= np.maximum(entry, 0.0), np.maximum(entry, 0.0), np.inf)
         t = np.minimum(t, t_box.min(axis=1))
     return t
+
+
+def _facing_keys(p_WL: np.ndarray, n_WL: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For the back-face test of landmarks p_WL (N, 3) on faces with outward normals n_WL (N, 3)
+    along the axes (the map's boxes are axis-aligned, the ground's normal is +z): codes (N,)
+    and keys (N,) such that a face turns toward a camera at c where n (c - p) > 0, that is where
+    [c, -c][code] > key. The same decision as the dot product, bit for bit: with n = s e_a
+    (s = +-1) the dot product is exactly s (c_a - p_a), positive where s c_a > s p_a."""
+    axis = np.argmax(np.abs(n_WL), axis=1)
+    sign = n_WL[np.arange(len(n_WL)), axis]
+    if not (np.all(np.abs(sign) == 1.0) and np.all(np.count_nonzero(n_WL, axis=1) == 1)):
+        raise ValueError("landmark face normals must be +-x, +-y or +-z")
+    return axis + 3 * (sign < 0), sign * p_WL[np.arange(len(p_WL)), axis]
 
 
 @dc.dataclass(frozen=True)
@@ -213,11 +227,13 @@ class GeometricRgbdCamera(TimedCamera):
         self._grid = LandmarkGrid(self.landmarks.p_WL, cell=params.max_range / 4)
         self._box_corners, self._cell_corners = BoxCorners(self._boxes), BoxCorners(
             self._grid.boxes)
+        self._frustum = self._frustum_planes()
         # The landmarks in the grid's order (`LandmarkGrid.order`), so that a frame gathers those
         # of a few cells from close together; homogeneous coordinates (N, 4) for one product.
         m, order = self.landmarks, self._grid.order
         self._p_WL_h = np.column_stack([m.p_WL[order], np.ones(len(m.p_WL))])
-        self._p_WL, self._n_WL, self._box_of = m.p_WL[order], m.n_WL[order], m.box[order]
+        self._p_WL, self._box_of = m.p_WL[order], m.box[order]
+        self._face_code, self._face_key = _facing_keys(self._p_WL, m.n_WL[order])
         self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(
             [RigidTransform()]))
         self._seed = self.DeclareVectorInputPort("noise_seed", 1)
@@ -286,17 +302,16 @@ class GeometricRgbdCamera(TimedCamera):
         """The `fresh` rows of `uv` (noise-free pixels) ordered as a detector with a bucketing
         grid picks new features: evenly over the image (GRID cells, the emptiest first, the
         `kept` tracks counted), not where landmarks crowd (near the horizon)."""
-        def cells(rows):
-            return (np.clip(uv[rows, 0] * GRID[0] / self._lens.width, 0, GRID[0] - 1)
-                    .astype(int) * GRID[1] + np.clip(uv[rows, 1] * GRID[1] / self._lens.height,
-                                                     0, GRID[1] - 1).astype(int))
         fresh = fresh[rng.permutation(len(fresh))]
         if not len(fresh):
             return fresh
-        count = np.bincount(cells(kept), minlength=GRID[0] * GRID[1])
+        cells = (np.clip(uv[:, 0] * GRID[0] / self._lens.width, 0, GRID[0] - 1).astype(int)
+                 * GRID[1] + np.clip(uv[:, 1] * GRID[1] / self._lens.height, 0,
+                                     GRID[1] - 1).astype(int))  # of every row, in one pass
+        count = np.bincount(cells[kept], minlength=GRID[0] * GRID[1])
         # Each new feature's rank: the features already in its cell (kept, then the new ones
         # before it in the shuffled order).
-        cell = cells(fresh)
+        cell = cells[fresh]
         order = _stable_order(cell, len(count))
         in_cell = np.bincount(cell, minlength=len(count))
         before = np.empty(len(fresh), int)
@@ -308,6 +323,17 @@ class GeometricRgbdCamera(TimedCamera):
         """The landmarks at positions `at` of the grid's order in the camera frame C (N, 3)."""
         return (X_WC.inverse().GetAsMatrix34() @ self._p_WL_h.take(at, axis=0).T).T
 
+    def _frustum_planes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The view frustum's planes in the camera frame C as inward unit normals n (6, 3) and
+        offsets o (6,), a point q inside where n q + o > 0: in front (z > 0), within
+        `max_range`, and inside the four image edges (those of `_boxes_in_view`)."""
+        (fx, fy), (cx, cy) = self._focal, self._center
+        w, h = self._lens.width, self._lens.height
+        normals = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [fx, 0.0, cx], [-fx, 0.0, w - cx],
+                            [0.0, fy, cy], [0.0, -fy, h - cy]])
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        return normals, np.array([0.0, self._params.max_range, 0.0, 0.0, 0.0, 0.0])
+
     def _boxes_in_view(self, X_WC: RigidTransform,
                        boxes: BoxCorners) -> tuple[np.ndarray, np.ndarray]:
         """Rows of the boxes not wholly outside one plane of the view frustum (behind the camera,
@@ -315,19 +341,21 @@ class GeometricRgbdCamera(TimedCamera):
         the camera frame C (N, 8, 3)."""
         X_CW = X_WC.inverse()
         R_CW, p_CW = X_CW.rotation().matrix(), X_CW.translation()
-        # Only the boxes whose spheres reach into 0 < z < max_range are tested corner by corner
-        # (margins far above rounding: the others are wholly behind or beyond, corner by corner).
-        z = boxes.centre @ R_CW[2] + p_CW[2]
-        rows = np.flatnonzero((z + boxes.radius > -1e-6)
-                              & (z - boxes.radius < self._params.max_range + 1e-6))
+        # Only the boxes whose spheres reach inside every plane of the frustum are tested corner
+        # by corner (margins far above rounding: the others are wholly outside a plane, corner by
+        # corner too); the slab 0 < z < max_range alone kept 60 % of a road map's cells.
+        normals, offsets = self._frustum
+        distance = normals @ (boxes.centre @ R_CW.T + p_CW).T + offsets[:, None]  # (6, M)
+        rows = np.flatnonzero(np.logical_and.reduce(distance + boxes.radius > -1e-6))
         p_C = boxes.p_W[rows] @ R_CW.T + p_CW
         x, y, z = p_C[..., 0], p_C[..., 1], p_C[..., 2]
         (fx, fy), (cx, cy) = self._focal, self._center
         w, h = self._lens.width, self._lens.height
-        outside = ((z <= 0).all(1) | (z >= self._params.max_range).all(1)
-                   | (fx * x + cx * z < 0).all(1)
-                   | (fx * x - (w - cx) * z > 0).all(1)
-                   | (fy * y + cy * z < 0).all(1) | (fy * y - (h - cy) * z > 0).all(1))
+        fx_x, fy_y = fx * x, fy * y
+        # all corners outside a plane: the one nearest to it is (max < 0 is all < 0)
+        outside = ((z.max(1) <= 0) | (z.min(1) >= self._params.max_range)
+                   | ((fx_x + cx * z).max(1) < 0) | ((fx_x - (w - cx) * z).min(1) > 0)
+                   | ((fy_y + cy * z).max(1) < 0) | ((fy_y - (h - cy) * z).min(1) > 0))
         return rows[~outside], p_C[~outside]
 
     def visible(self, X_WC: RigidTransform) -> tuple[list[int], np.ndarray, np.ndarray]:
@@ -343,13 +371,14 @@ class GeometricRgbdCamera(TimedCamera):
         (a map along a road holds 10^5 of them)."""
         c = X_WC.translation()
         at, uv, z = self._in_image(X_WC)
-        p_WL = self._p_WL.take(at, axis=0)
-        rows = np.flatnonzero(np.einsum("ij,ij->i", self._n_WL.take(at, axis=0), c - p_WL) > 0)
+        # facing the camera: n (c - p) > 0, as `_facing_keys` compares it
+        rows = np.flatnonzero(np.concatenate([c, -c]).take(self._face_code.take(at))
+                              > self._face_key.take(at))
         # Only boxes that reach into the view frustum can hide a point in it.
         in_view, corners_C = self._boxes_in_view(X_WC, self._box_corners)
         box_row = np.full(len(self._boxes) + 1, -1)  # a box's row in in_view (-1, the last: none)
         box_row[in_view] = np.arange(len(in_view))
-        rows = rows[~occluded(c, p_WL.take(rows, axis=0), self._boxes[in_view],
+        rows = rows[~occluded(c, self._p_WL.take(at[rows], axis=0), self._boxes[in_view],
                               box_row[self._box_of[at[rows]]],
                               self._may_hide(corners_C, uv.take(rows, axis=0), z[rows]))]
         # Increasing order: each cell's landmarks are an increasing run, a stable sort merges them.
