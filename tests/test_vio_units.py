@@ -224,6 +224,14 @@ def test_a_long_map_is_seen_as_projecting_all_of_it_would_see_it():
     assert seen > 40 * 100  # the poses do see the map
 
 
+def test_the_keypoint_pixels_are_the_lens_projection_bit_for_bit():
+    """The geometric camera projects its keypoints without OpenCV's call; the same pixels."""
+    params = RgbdCameraParams(landmarks=LandmarkMapParams(extent=[-5.0, -5.0, 5.0, 5.0], boxes=2))
+    rng = np.random.default_rng(5)
+    p_C = np.column_stack([rng.uniform(-40, 40, (100000, 2)), rng.uniform(0.1, 40, 100000)])
+    assert np.array_equal(GeometricRgbdCamera(params, 0).pixels(p_C), params.lens().project(p_C))
+
+
 def test_a_landmark_behind_a_box_or_on_a_back_face_is_not_observed():
     box = [4.0, -0.5, 5.0, 0.5, 2.0, 0.0]  # x0, y0, x1, y1, height
     # behind the box (ground), on its front face (-x), on its back face (+x)
