@@ -306,7 +306,8 @@ class GeometricDownCamera(TimedCamera):
         p_CT = [X.inverse().translation() for X in (X_TC, X_TC_before)]
         if min(q[2] for q in p_CT) <= 0.05:
             return float("inf")
-        return float(np.linalg.norm(np.subtract(*(self._lens.project(q[None])[0] for q in p_CT))))
+        uv = self._lens.project(np.array(p_CT))  # one call, point by point the same pixels
+        return float(np.linalg.norm(uv[0] - uv[1]))
 
     def detection_probability(self, X_TC: RigidTransform, blur: float) -> float:
         """Probability that the front end finds the pattern in a frame that arrives, from the
@@ -381,18 +382,15 @@ class GeometricDownCamera(TimedCamera):
 
 def _moved(X_WA: RigidTransform, V_WA: SpatialVelocity, dt: float) -> RigidTransform:
     """The pose `dt` later at constant spatial velocity (first order in the rotation vector)."""
-    R = RotationMatrix(AngleAxis(float(np.linalg.norm(V_WA.rotational()) * dt),
-                                 _unit(V_WA.rotational()))) @ X_WA.rotation()
+    w = V_WA.rotational()
+    rate = np.linalg.norm(w)
+    axis = w / rate if rate > 0 else np.array([0.0, 0.0, 1.0])
+    R = RotationMatrix(AngleAxis(float(rate * dt), axis)) @ X_WA.rotation()
     return RigidTransform(R, X_WA.translation() + V_WA.translational() * dt)
 
 
 def _logistic(x: float) -> float:
     return 1.0 / (1.0 + np.exp(-np.clip(x, -50.0, 50.0)))
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v)
-    return v / n if n > 0 else np.array([0.0, 0.0, 1.0])
 
 
 def _uniform_in_disc(rng, n: int, radius: float) -> np.ndarray:
