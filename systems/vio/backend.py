@@ -13,6 +13,7 @@ calibrated mount.
 """
 import dataclasses as dc
 import functools
+import math
 
 import gtsam
 import numpy as np
@@ -102,7 +103,11 @@ class FixedLagSmoother:
     marginalize in leaf cliques, as `ISAM2.marginalizeLeaves` requires (GTSAM's smoother marks
     only the cliques between them and the leaves)."""
 
+    # a gtsam.Symbol key holds its character in the top 8 bits (Symbol(key).chr(), without the
+    # Symbol: 1.4 us a key, ~250 keys an update)
+    _CHR_SHIFT = 56
     _LAST = (ord("x"), ord("v"), ord("b"))
+    _LANDMARK = ord("l")
 
     def __init__(self, lag: float, params: gtsam.ISAM2Params):
         self._lag = lag
@@ -113,18 +118,22 @@ class FixedLagSmoother:
                stamps: dict[int, float]) -> None:
         """Adds the factors and new variables stamped `stamps`, optimizes, marginalizes what is
         older than the newest stamp minus the lag."""
+        # the keys iSAM2 holds: every stamped key got its value in the update that stamped it
+        # first, and stays until marginalized (a failed update discards the whole smoother)
+        new = set(values.keys())
         self._stamps.update(stamps)
         now = max(self._stamps.values())
         old = [key for key, t in self._stamps.items() if t < now - self._lag]
+        shift = self._CHR_SHIFT
         groups, keys = gtsam.KeyGroupMap(), gtsam.KeyList()
         for key in old:                          # KeyGroupMap.insert2 keeps the first group
             groups.insert2(key, 0)
         for key, t in stamps.items():
-            if t == now and gtsam.Symbol(key).chr() in self._LAST:
+            if t == now and key >> shift in self._LAST:
                 groups.insert2(key, 3)
         for key in self._stamps:
-            groups.insert2(key, 1 if gtsam.Symbol(key).chr() == ord("l") else 2)
-            if self.isam.valueExists(key):
+            groups.insert2(key, 1 if key >> shift == self._LANDMARK else 2)
+            if key not in new:
                 keys.push_back(key)
         self.isam.update(graph, values, [], groups, None, keys, False)
         if old:
@@ -212,6 +221,19 @@ class SlidingWindow:
         values.insert(B(k), previous.bias)
         return self._update(t, graph, values, predicted.pose(), observations)
 
+    def counts(self, tracks: list[int], u_virtual: list[float]) -> tuple[int, int]:
+        """Of a frame's keypoints (track ids, virtual-camera u): how many are of landmarks in
+        the window, and how many `selected` could take (those and the new ones with depth)."""
+        landmarks = self._landmarks
+        known = usable = 0
+        for track, u in zip(tracks, u_virtual):
+            if track in landmarks:
+                known += 1
+            elif not math.isfinite(u):
+                continue
+            usable += 1
+        return known, usable
+
     def selected(self, observations: list[Observation]) -> list[Observation]:
         """The observations a keyframe adds: of landmarks in the window, then of new ones with
         depth (a landmark is created from its first observation with depth), `max_landmarks`
@@ -219,7 +241,7 @@ class SlidingWindow:
         a new track left out now is offered again at the next keyframe."""
         known = [o for o in observations if o.track in self._landmarks]
         new = [o for o in observations
-               if o.track not in self._landmarks and np.isfinite(o.u_virtual)]
+               if o.track not in self._landmarks and math.isfinite(o.u_virtual)]
         return (known + new)[:self._p.max_landmarks]
 
     def _update(self, t, graph, values, X_WB: gtsam.Pose3, observations) -> KeyframeState:
@@ -227,18 +249,19 @@ class SlidingWindow:
         timestamps = {key: t for key in (X(k), V(k), B(k))}
         X_WC = X_WB.compose(self._X_BC)
         landmarks = dict(self._landmarks)
+        pose_key = X(k)
         for obs in self.selected(observations):
-            depth = np.isfinite(obs.u_virtual)
+            key = L(obs.track)
             if obs.track not in self._landmarks:
-                values.insert(L(obs.track), X_WC.transformFrom(obs.p_C))
-            if depth:
+                values.insert(key, X_WC.transformFrom(obs.p_C))
+            if math.isfinite(obs.u_virtual):
                 graph.add(gtsam.GenericStereoFactor3D(
                     gtsam.StereoPoint2(obs.uv[0], obs.u_virtual, obs.uv[1]), self._stereo_noise,
-                    X(k), L(obs.track), self._K_stereo, self._X_BC))
+                    pose_key, key, self._K_stereo, self._X_BC))
             else:
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                    obs.uv, self._mono_noise, X(k), L(obs.track), self._K, self._X_BC))
-            timestamps[L(obs.track)] = t
+                    obs.uv, self._mono_noise, pose_key, key, self._K, self._X_BC))
+            timestamps[key] = t
             landmarks[obs.track] = t
         try:
             self._smoother.update(graph, values, timestamps)

@@ -156,16 +156,17 @@ class VioEstimator:
             self._initialize(frame.stamp, keypoints)
             return
         window = self._window
-        observations = self._observations(keypoints)
-        usable = [o for o in observations if window.knows(o.track) or math.isfinite(o.u_virtual)]
-        known = sum(window.knows(o.track) for o in usable)
+        stereo = self._stereo(keypoints)
+        # (counted on the lists: the Observations are made for keyframes only, a third of frames)
+        known, usable = window.counts(stereo[0], stereo[1])
         # the overlap counts against what a keyframe can hold (the back end's max_landmarks)
         if not is_keyframe(self.p.frontend, frame.stamp, window.state.t, known,
-                           min(len(usable), self.p.backend.max_landmarks)):
+                           min(usable, self.p.backend.max_landmarks)):
             return
-        if len(usable) < self.p.min_features:
+        if usable < self.p.min_features:
             self._update_status(frame.stamp)
             return
+        observations = self._observations(keypoints, stereo)
         before = self._propagated_position()
         try:
             with self.timer.measure(frame.stamp, "backend"):
@@ -190,13 +191,19 @@ class VioEstimator:
         if before is not None and self._t_out == t_before:
             self.correction = self.correction + (self._propagated_position() - before)
 
-    def _observations(self, keypoints: Keypoints) -> list[Observation]:
+    def _stereo(self, keypoints: Keypoints) -> tuple[list[int], list[float], np.ndarray]:
+        """The keypoints' track ids, virtual-camera u (L(2)) and back-projected points p_C."""
         K = np.asarray(self._calibration["K"], float)
         u_virtual, p_C = virtual_stereo(keypoints.uv, keypoints.depth, K,
                                         float(self._calibration["baseline"]))
         # (tolist: the ids and u as Python ints and floats at once, not one conversion each)
+        return keypoints.ids.tolist(), u_virtual.tolist(), p_C
+
+    @staticmethod
+    def _observations(keypoints: Keypoints, stereo) -> list[Observation]:
+        ids, u_virtual, p_C = stereo
         return [Observation(i, uv, uv_v, pc) for i, uv, uv_v, pc
-                in zip(keypoints.ids.tolist(), keypoints.uv, u_virtual.tolist(), p_C)]
+                in zip(ids, keypoints.uv, u_virtual, p_C)]
 
     def _initialize(self, stamp: float, keypoints: Keypoints) -> None:
         rest = [s for s in self._samples if stamp - self.p.init_duration <= s[0] <= stamp]
@@ -219,7 +226,7 @@ class VioEstimator:
         nav = gtsam.NavState(gtsam.Rot3(R_WB), np.asarray(self.p.initial_position, float),
                              np.zeros(3))
         bias = gtsam.imuBias.ConstantBias(b_a, w.mean(axis=0))
-        observations = self._observations(keypoints)
+        observations = self._observations(keypoints, self._stereo(keypoints))
         if sum(math.isfinite(o.u_virtual) for o in observations) < self.p.min_features:
             return
         self._window.start(stamp, nav, bias, observations)

@@ -92,6 +92,29 @@ def lookup_depth(depth_image: np.ndarray, uv: np.ndarray, half: int) -> np.ndarr
     return middle.astype(float)
 
 
+def _homogeneous(xy: np.ndarray) -> np.ndarray:
+    """The (N, 2) points with a third coordinate 1 (N, 3)."""
+    x = np.empty((len(xy), 3))
+    x[:, :2] = xy
+    x[:, 2] = 1.0
+    return x
+
+
+def _row_norms(x: np.ndarray) -> np.ndarray:
+    """np.linalg.norm(x, axis=1) of a real (N, k) array, the same sums without its checks."""
+    return np.sqrt(np.add.reduce(x * x, axis=1))
+
+
+def _cross(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """np.cross(t, y) of a 3-vector and (N, 3) rows, the same products without its
+    broadcasting machinery (most of its cost at a few dozen rows)."""
+    out = np.empty_like(y)
+    out[:, 0] = t[1] * y[:, 2] - t[2] * y[:, 1]
+    out[:, 1] = t[2] * y[:, 0] - t[0] * y[:, 2]
+    out[:, 2] = t[0] * y[:, 1] - t[1] * y[:, 0]
+    return out
+
+
 class KltTracker:
     """Corner tracking on the grey image of rendered frames (state: the previous image and its
     tracked corners with their ids)."""
@@ -112,14 +135,18 @@ class KltTracker:
         previous, self._last_geometric = self._last_geometric, keypoints
         _, a, b = np.intersect1d(previous.ids, keypoints.ids, assume_unique=True,
                                  return_indices=True)
-        has_depth = np.isfinite(previous.depth[a])
-        if has_depth.sum() < 8:
+        depth_prev = previous.depth[a]
+        has_depth = np.isfinite(depth_prev)
+        if np.count_nonzero(has_depth) < 8:
             return keypoints
+        no_depth = ~has_depth
         f, c = K[[0, 1], [0, 1]], K[:2, 2]
-        x_prev = np.column_stack([(previous.uv[a] - c) / f, np.ones(len(a))])
-        p_prev = x_prev[has_depth] * previous.depth[a][has_depth, None]
+        x_prev = _homogeneous((previous.uv[a] - c) / f)
+        p_prev = x_prev[has_depth] * depth_prev[has_depth, None]
+        uv = keypoints.uv[b]
+        uv_depth = uv[has_depth]
         ok, rvec, tvec, _ = cv2.solvePnPRansac(
-            p_prev, keypoints.uv[b][has_depth], K, None, iterationsCount=50,
+            p_prev, uv_depth, K, None, iterationsCount=50,
             reprojectionError=self._p.outlier_threshold, confidence=0.99,
             flags=cv2.SOLVEPNP_EPNP)
         if not ok:
@@ -127,14 +154,12 @@ class KltTracker:
         R, t = cv2.Rodrigues(rvec)[0], tvec.ravel()
         error = np.empty(len(a))
         q = p_prev @ R.T + t
-        error[has_depth] = np.linalg.norm(q[:, :2] / q[:, 2:] * f + c
-                                          - keypoints.uv[b][has_depth], axis=1)
+        error[has_depth] = _row_norms(q[:, :2] / q[:, 2:] * f + c - uv_depth)
         # without depth: the distance to the epipolar line E x_prev (E = [t]x R), in pixels
-        x_cur = np.column_stack([(keypoints.uv[b][~has_depth] - c) / f,
-                                 np.ones((~has_depth).sum())])
-        line = np.cross(t, x_prev[~has_depth] @ R.T)
-        error[~has_depth] = f.mean() * np.abs(np.einsum("ij,ij->i", x_cur, line)) / np.maximum(
-            np.linalg.norm(line[:, :2], axis=1), 1e-12)
+        x_cur = _homogeneous((uv[no_depth] - c) / f)
+        line = _cross(t, x_prev[no_depth] @ R.T)
+        error[no_depth] = f.mean() * np.abs(np.einsum("ij,ij->i", x_cur, line)) / np.maximum(
+            _row_norms(line[:, :2]), 1e-12)
         bad = b[error > self._p.outlier_threshold]
         if not len(bad):
             return keypoints
