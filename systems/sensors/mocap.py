@@ -69,9 +69,8 @@ class Mocap(LeafSystem):
         first = previous[_VALID] < 0.5
         dt = self._p.period
         alpha = 0.0 if first else self._p.velocity_filter
-        if first:   # (alpha 0 and a zero raw velocity: v = 0 * previous + 1 * 0)
-            v = [alpha * v_i + (1 - alpha) * 0.0 for v_i in previous[_V_EB].tolist()]
-            a = [0.0] * 3
+        if first:   # no velocity from one sample (the previous state is the zero initial one)
+            v, a = [0.0] * 3, [0.0] * 3
         else:
             raw_v = [(p_i - u_i) / dt for p_i, u_i in zip(p, previous[_P_EB].tolist())]
             v_previous = previous[_V_EB].tolist()
