@@ -241,7 +241,8 @@ def bare_plant_diagram(with_world: bool = False):
     config = load_sim_vehicle_config()
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(
-        time_step=config.time_step, discrete_contact_approximation="sap"), builder)
+        time_step=config.time_step, discrete_contact_approximation="sap",
+        contact_model="point"), builder)  # as make_sim_vehicle's plant
     add_hexacopter(plant, config.airframe)
     car = None
     if with_world:
