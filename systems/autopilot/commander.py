@@ -128,17 +128,19 @@ class Commander(LeafSystem):
             stamp=-np.inf, mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3),
             thrust=0.0, arm=0.0)
         memory[_ARM_RELEASED] = 1.0
-        self._memory = self.DeclareDiscreteState(memory)
+        memory_group = self.DeclareDiscreteState(memory)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self._setpoint = self.DeclareDiscreteState(SETPOINT.pack(
+        setpoint = self.DeclareDiscreteState(SETPOINT.pack(
             mode=CommandMode.ATTITUDE_THRUST, q_WD=[1, 0, 0, 0], w_D=np.zeros(3), thrust=0.0,
             armed=0.0))
-        self._armed = self.DeclareDiscreteState(1)
-        self._status = self.DeclareDiscreteState(FC_STATUS.vector(
-            last_command_stamp=NO_COMMAND_STAMP))
-        self.DeclareStateOutputPort("setpoint", self._setpoint)
-        self.DeclareStateOutputPort("armed", self._armed)
-        self.DeclareStateOutputPort("fc_status", self._status)
+        armed = self.DeclareDiscreteState(1)
+        status = self.DeclareDiscreteState(FC_STATUS.vector(last_command_stamp=NO_COMMAND_STAMP))
+        self.DeclareStateOutputPort("setpoint", setpoint)
+        self.DeclareStateOutputPort("armed", armed)
+        self.DeclareStateOutputPort("fc_status", status)
+        # Groups accessed by int index: pydrake converts a DiscreteStateIndex on every call.
+        self._memory, self._setpoint, self._armed, self._status = map(
+            int, (memory_group, setpoint, armed, status))
 
     def _update(self, context, discrete_state):
         # `discrete_state` holds the current state on entry (Drake copies it in).

@@ -35,10 +35,12 @@ class InnerLoop(LeafSystem):
         self._mixer = Mixer(airframe)
         self._setpoint = self.DeclareVectorInputPort("setpoint", SETPOINT.size)
         self._attitude = self.DeclareVectorInputPort("fc_attitude", FC_ATTITUDE.size)
-        self._memory = self.DeclareDiscreteState(6)
-        self._command = self.DeclareDiscreteState(airframe.num_rotors)
+        memory = self.DeclareDiscreteState(6)
+        command = self.DeclareDiscreteState(airframe.num_rotors)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-        self.DeclareStateOutputPort("motor_command", self._command)
+        self.DeclareStateOutputPort("motor_command", command)
+        # Groups accessed by int index: pydrake converts a DiscreteStateIndex on every call.
+        self._memory, self._command = int(memory), int(command)
 
     def _update(self, context, discrete_state):
         # `discrete_state` holds the current state on entry (Drake copies it in).

@@ -32,11 +32,14 @@ class MixerSolution:
 def mix(force: float, torque, pinv: np.ndarray, f_min: float, f_max: float) -> MixerSolution:
     """Rotor thrusts within [f_min, f_max] for a collective force [N] and torque [N m] (3 floats,
     a list or an array)."""
-    # On Python floats past the allocation (NumPy's per-call overhead dominates on 6-vectors); the
-    # roll/pitch allocation keeps NumPy's matrix product (BLAS may round differently).
-    base = (pinv[:, 0] * force).tolist()
+    # On Python floats (NumPy's per-call overhead dominates on 6-vectors), the collective and yaw
+    # columns too (one product per element, as NumPy's); the roll/pitch allocation keeps NumPy's
+    # matrix product (BLAS may round differently).
+    force, yaw_torque = float(force), float(torque[2])
+    collective_column, yaw_column = pinv[:, 0].tolist(), pinv[:, 3].tolist()
+    base = [p * force for p in collective_column]
     roll_pitch = (pinv[:, 1:3] @ torque[:2]).tolist()
-    yaw = (pinv[:, 3] * torque[2]).tolist()
+    yaw = [p * yaw_torque for p in yaw_column]
     low, high = _extent(roll_pitch)
     span = high - low
     rp_scale = min(1.0, (f_max - f_min) / span) if span > 0 else 1.0
@@ -54,8 +57,8 @@ def mix(force: float, torque, pinv: np.ndarray, f_min: float, f_max: float) -> M
         elif dy < -1e-12:
             yaw_scale = min(yaw_scale, (f_min - f) / dy)
     yaw_scale = max(yaw_scale, 0.0)
-    thrust = np.array([min(max(f + yaw_scale * dy, f_min), f_max) for f, dy in zip(thrust, yaw)])
-    return MixerSolution(thrust, rp_scale, yaw_scale, shift * len(thrust))
+    thrust = [min(max(f + yaw_scale * dy, f_min), f_max) for f, dy in zip(thrust, yaw)]
+    return MixerSolution(np.array(thrust), rp_scale, yaw_scale, shift * len(thrust))
 
 
 def _extent(values: list[float]) -> tuple[float, float]:
@@ -82,7 +85,7 @@ class Mixer:
             return self._stopped
         force = self._collective.force(setpoint[_THRUST])
         solution = mix(force, torque, self._pinv, self._f_min, self._f_max)
-        return self._rotor.thrust(solution.rotor_thrust)
+        return np.array(self._rotor.thrust_floats(solution.rotor_thrust.tolist()))
 
 
 _ARMED, _THRUST = SETPOINT.slice("armed").start, SETPOINT.slice("thrust").start

@@ -40,10 +40,11 @@ class AerodynamicDrag(LeafSystem):
         self._force.p_BoBq_B = self._zero
         self._force.F_Bq_W = SpatialForce(self._zero, self._zero)
         if period > 0:
-            self._held = self.DeclareAbstractState(AbstractValue.Make([self._force]))
+            held = self.DeclareAbstractState(AbstractValue.Make([self._force]))
             self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._sample)
             self.DeclareInitializationUnrestrictedUpdateEvent(self._sample)
-            self.DeclareStateOutputPort("spatial_forces", self._held)
+            self.DeclareStateOutputPort("spatial_forces", held)
+            self._held = int(held)  # (by int: pydrake converts an index object on every call)
             return
         self.DeclareAbstractOutputPort(
             "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),

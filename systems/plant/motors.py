@@ -5,6 +5,8 @@ The first-order motor response follows in the diagram (`first_order_motors`: a D
 step); saturation happens here: commands are clipped to [0, 1], a non-finite
 command stops the motor, and a disarmed vehicle's rotors do not turn.
 """
+import math
+
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 from pydrake.systems.primitives import LinearSystem
@@ -29,8 +31,9 @@ class EscThrustMap(LeafSystem):
 
     def _calc(self, context, output):
         if self._armed.Eval(context)[0] > 0.5:
-            command = self._command.Eval(context)
-            output.SetFromVector(self._curve.force(np.where(np.isfinite(command), command, 0.0)))
+            # On Python floats: NumPy's per-call overhead dominates on a few rotors.
+            command = [c if math.isfinite(c) else 0.0 for c in self._command.Eval(context).tolist()]
+            output.SetFromVector(self._curve.force_floats(command))
         else:
             output.SetFromVector(self._stopped)
 

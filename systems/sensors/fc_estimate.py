@@ -45,15 +45,17 @@ class FcEstimate(LeafSystem):
         self._noise = self.DeclareVectorInputPort("noise", 7)
         # State: the rotation-vector attitude error (3) and the two outputs, each its own group
         # so that the outputs are state output ports (no Python call when read).
-        self._error = self.DeclareDiscreteState(3)
+        error = self.DeclareDiscreteState(3)
         initial = np.zeros(FC_ATTITUDE.size)
         initial[FC_ATTITUDE.slice("q_WB").start] = 1.0
-        self._fc_attitude = self.DeclareDiscreteState(initial)
-        self._vz = self.DeclareDiscreteState(1)
+        fc_attitude = self.DeclareDiscreteState(initial)
+        vz = self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(params.period, 0.0, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
-        self.DeclareStateOutputPort("fc_attitude", self._fc_attitude)
-        self.DeclareStateOutputPort("vertical_velocity", self._vz)
+        self.DeclareStateOutputPort("fc_attitude", fc_attitude)
+        self.DeclareStateOutputPort("vertical_velocity", vz)
+        # Groups accessed by int index: pydrake converts a DiscreteStateIndex on every call.
+        self._error, self._fc_attitude, self._vz = int(error), int(fc_attitude), int(vz)
 
     def _update(self, context, discrete_state):
         # On Python floats where NumPy's per-call overhead dominates (3- and 4-vectors); the

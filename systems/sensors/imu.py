@@ -40,28 +40,33 @@ class Imu(LeafSystem):
         super().__init__()
         self._period = params.period
         self._capacity = params.buffer_length
-        self._white = np.repeat([params.accel_noise_density, params.gyro_noise_density], 3) \
-            / np.sqrt(params.period)
-        self._walk = np.repeat([params.accel_bias_random_walk, params.gyro_bias_random_walk], 3) \
-            * np.sqrt(params.period)
+        # Python floats: the per-sample arithmetic is on floats (NumPy's per-call overhead
+        # dominates on 6-vectors), the same IEEE operations per element.
+        self._white = (np.repeat([params.accel_noise_density, params.gyro_noise_density], 3)
+                       / np.sqrt(params.period)).tolist()
+        self._walk = (np.repeat([params.accel_bias_random_walk, params.gyro_bias_random_walk], 3)
+                      * np.sqrt(params.period)).tolist()
         self._specific_force = self.DeclareVectorInputPort("specific_force", 3)
         self._angular_velocity = self.DeclareVectorInputPort("angular_velocity", 3)
         self._noise = self.DeclareVectorInputPort("noise", 12)
-        self._bias = self.DeclareDiscreteState(np.concatenate([params.accel_bias, params.gyro_bias]))
-        self._samples = self.DeclareAbstractState(AbstractValue.Make(ImuSamples.empty()))
+        bias = self.DeclareDiscreteState(np.concatenate([params.accel_bias, params.gyro_bias]))
+        samples = self.DeclareAbstractState(AbstractValue.Make(ImuSamples.empty()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.period, 0.0, self._update)
-        self.DeclareStateOutputPort("imu", self._samples)
-        self.DeclareStateOutputPort("bias", self._bias)
+        self.DeclareStateOutputPort("imu", samples)
+        self.DeclareStateOutputPort("bias", bias)
+        # State accessed by int index: pydrake converts a state index object on every call.
+        self._bias, self._samples = int(bias), int(samples)
 
     def _update(self, context, state):
         # `state` holds the current state on entry (Drake copies it in): the bias updated in place.
         bias = state.get_mutable_discrete_state(self._bias).get_mutable_value()
-        noise = self._noise.Eval(context)
-        truth = np.concatenate([self._specific_force.Eval(context),
-                                self._angular_velocity.Eval(context)])
-        measured = truth + bias + self._white * noise[:6]
+        b = bias.tolist()
+        noise = self._noise.Eval(context).tolist()
+        truth = self._specific_force.Eval(context).tolist() \
+            + self._angular_velocity.Eval(context).tolist()
+        measured = [y + b_ + w * n for y, b_, w, n in zip(truth, b, self._white, noise)]
         samples = context.get_abstract_state(self._samples).get_value()
         seq = int(samples.seq[-1]) + 1 if len(samples) else 0
         state.get_mutable_abstract_state(self._samples).set_value(samples.appended(
             seq, context.get_time(), measured[:3], measured[3:], self._capacity))
-        bias += self._walk * noise[6:]
+        bias[:] = [b_ + w * n for b_, w, n in zip(b, self._walk, noise[6:])]
