@@ -77,6 +77,11 @@ class KeyframeState:
         return R, np.diag(R @ self.cov_pose[3:, 3:] @ R.T), \
             np.diag(R @ self.cov_pose[:3, :3] @ R.T), np.diag(self.cov_velocity)
 
+    @functools.cached_property
+    def biases(self) -> tuple[np.ndarray, np.ndarray]:
+        """The accelerometer and gyro biases b_a, b_g (read once, for the same reason)."""
+        return self.bias.accelerometer(), self.bias.gyroscope()
+
 
 class DivergedError(RuntimeError):
     """The optimizer failed or produced an implausible state; the window must be restarted."""
@@ -113,33 +118,47 @@ class FixedLagSmoother:
         self._lag = lag
         self.isam = gtsam.ISAM2(params)
         self._stamps: dict[int, float] = {}   # key -> when last observed [s]
+        # Kept from update to update (a binding call per key changed, not per key held: ~250
+        # keys, ~15 change an update): every held key's group between updates (1 landmark,
+        # 2 keyframe variable), and the held keys in the order of `_stamps` (first stamped first)
+        self._groups, self._held = gtsam.KeyGroupMap(), gtsam.KeyList()
 
     def update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                stamps: dict[int, float]) -> None:
         """Adds the factors and new variables stamped `stamps`, optimizes, marginalizes what is
         older than the newest stamp minus the lag."""
         # the keys iSAM2 holds: every stamped key got its value in the update that stamped it
-        # first, and stays until marginalized (a failed update discards the whole smoother)
-        new = set(values.keys())
+        # first, and stays until marginalized (a failed update discards the whole smoother), so
+        # the keys first stamped now are new ones (in `values`), re-eliminated from the next on
+        first = [key for key in stamps if key not in self._stamps]
         self._stamps.update(stamps)
         now = max(self._stamps.values())
         old = [key for key, t in self._stamps.items() if t < now - self._lag]
-        shift = self._CHR_SHIFT
-        groups, keys = gtsam.KeyGroupMap(), gtsam.KeyList()
-        for key in old:                          # KeyGroupMap.insert2 keeps the first group
-            groups.insert2(key, 0)
-        for key, t in stamps.items():
-            if t == now and key >> shift in self._LAST:
-                groups.insert2(key, 3)
-        for key in self._stamps:
+        shift, groups, held = self._CHR_SHIFT, self._groups, self._held
+        for key in first:
             groups.insert2(key, 1 if key >> shift == self._LANDMARK else 2)
-            if key not in new:
-                keys.push_back(key)
-        self.isam.update(graph, values, [], groups, None, keys, False)
+        # for this update: the keys to marginalize first (group 0), the newest keyframe's pose,
+        # velocity and bias last (3)
+        for key in old:
+            groups.erase(key)
+            groups.insert2(key, 0)
+        last = [key for key, t in stamps.items()
+                if t == now and key >> shift in self._LAST and groups.at(key) != 0]
+        for key in last:
+            groups.erase(key)
+            groups.insert2(key, 3)
+        self.isam.update(graph, values, [], groups, None, held, False)
+        for key in last:
+            groups.erase(key)
+            groups.insert2(key, 2)
+        for key in first:
+            held.push_back(key)
         if old:
             leaves = gtsam.KeyList()
             for key in old:
                 leaves.push_back(key)
+                held.remove(key)
+                groups.erase(key)
                 del self._stamps[key]
             self.isam.marginalizeLeaves(leaves)
 

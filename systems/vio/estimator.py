@@ -288,13 +288,14 @@ class VioEstimator:
             return None
         state = self._window.state
         var_p, var_rot, var_v = self._propagated_covariance(state, self._pim_out)
-        attitude = nav.attitude()
-        R = attitude.matrix()
-        b_a, b_g = state.bias.accelerometer(), state.bias.gyroscope()
+        # R, p and v from the NavState's 5x5 matrix [R p v; 0 I] in one call (not three)
+        M = nav.matrix()
+        R = M[:3, :3]
+        b_a, b_g = state.biases
         f, w = (self._samples[-1][1], self._samples[-1][2]) if self._samples else (
             R.T @ self._g + b_a, b_g)
         a = R @ (f - b_a) - self._g
-        q = attitude.toQuaternion()
-        return Estimate(self._t_out, nav.position(), nav.velocity(),
+        q = nav.attitude().toQuaternion()
+        return Estimate(self._t_out, M[:3, 3], M[:3, 4],
                         np.array([q.w(), q.x(), q.y(), q.z()]), a, w - b_g, b_g, b_a, var_p,
                         var_rot, var_v)
