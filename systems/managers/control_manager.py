@@ -55,6 +55,7 @@ manager sends one only once landed).
 import dataclasses as dc
 import enum
 import functools
+import math
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -69,6 +70,7 @@ from alight.systems.control.force_controller import VehicleModel
 from alight.systems.control.touchdown import light_time
 from alight.systems.estimation.frames import frame_switch, reexpress_point
 from alight.systems.params import bounded
+from alight.systems.rotations import _floats, all_finite, norm
 
 
 class ManagerMode(enum.IntEnum):
@@ -142,22 +144,25 @@ class SafetyArea:
         """Refusal.NONE when `p` [m, in E] is allowed."""
         if not self.enabled:
             return Refusal.NONE
-        if not np.all(np.isfinite(p)):
+        x, y, z = _floats(p)  # (per tick: Python floats, the same arithmetic as NumPy's)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             return Refusal.NOT_FINITE
-        if p[2] < self.min_height:
+        if z < self.min_height:
             return Refusal.BELOW_MIN_HEIGHT
-        if p[2] > self.max_height:
+        if z > self.max_height:
             return Refusal.ABOVE_MAX_HEIGHT
-        if not inside_polygon(p[:2], np.asarray(self.polygon, dtype=float)):
+        if not inside_polygon((x, y), self.polygon):
             return Refusal.OUTSIDE_POLYGON
         return Refusal.NONE
 
 
-def inside_polygon(point: np.ndarray, polygon: np.ndarray) -> bool:
-    """Even-odd ray casting; points on an edge count as inside."""
-    x, y = point
+def inside_polygon(point, polygon) -> bool:
+    """Even-odd ray casting; points on an edge count as inside. `point` [x, y], `polygon` a
+    list (or array) of [x, y] vertices."""
+    x, y = _floats(point)
+    vertices = [(float(u), float(v)) for u, v in polygon]
     inside = False
-    for (x0, y0), (x1, y1) in zip(polygon, np.roll(polygon, -1, axis=0)):
+    for (x0, y0), (x1, y1) in zip(vertices, vertices[1:] + vertices[:1]):
         cross = (x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)
         if cross == 0.0 and min(x0, x1) <= x <= max(x0, x1) and min(y0, y1) <= y <= max(y0, y1):
             return True
@@ -432,10 +437,9 @@ class ControlManager(CommandSwitch):
         if estimate_ok:
             x[S.slice("estimate_seen")] = 1.0
         reference = self._reference(context, x, mode, now)
-        error = float(np.linalg.norm(REFERENCE.get(reference, "p")
-                                     - STATE_ESTIMATE.get(estimate, "p_EB"))) \
+        error = norm(REFERENCE.get(reference, "p") - STATE_ESTIMATE.get(estimate, "p_EB")) \
             if estimate_ok else float("nan")
-        x[S.slice("control_error")] = error if np.isfinite(error) else 0.0
+        x[S.slice("control_error")] = error if math.isfinite(error) else 0.0
         watching_error = watching and not switching
         if cause == FailsafeCause.NONE and mode == ManagerMode.NORMAL and watching_error and \
                 error > self._e.failsafe_threshold:
@@ -500,11 +504,12 @@ class ControlManager(CommandSwitch):
         if port is None or not port.HasValue(context):
             return None, False
         request_id, index = port.Eval(context)
-        if not (np.isfinite(request_id) and request_id > 0
+        request_id, index = float(request_id), float(index)
+        if not (math.isfinite(request_id) and request_id > 0
                 and request_id != _STATE.get(x, id_field)):
             return None, False
         x[_STATE.slice(id_field)] = request_id
-        if np.isfinite(index) and 0 <= int(index) < count and int(index) == index:
+        if math.isfinite(index) and 0 <= int(index) < count and int(index) == index:
             return int(index), False
         return None, True
 
@@ -578,9 +583,9 @@ class ControlManager(CommandSwitch):
         goal, refusal = self._chi(context, x, now)
         if refusal == Refusal.NONE:
             refusal = self._area.check(REFERENCE.get(goal, "p")) \
-                if np.all(np.isfinite(goal)) else Refusal.NOT_FINITE
+                if all_finite(goal) else Refusal.NOT_FINITE
         held = S.get(x, "held") > 0.5
-        if held and refusal == Refusal.NONE and np.linalg.norm(
+        if held and refusal == Refusal.NONE and norm(
                 REFERENCE.get(goal, "p") - S.get(x, "hold_p")) <= self._area.rejoin_distance:
             held = False
         elif not held and refusal != Refusal.NONE:
