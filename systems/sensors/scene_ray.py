@@ -54,8 +54,8 @@ def ray_hit(truth: np.ndarray, d_B: np.ndarray, boxes: tuple,
     if not boxes or truth[_TARGET_PRESENT] < 0.5:
         return float(ground), False
     R_WT = rotation_matrix(truth[_Q_WT])
-    p_BT = p_WB - truth[_P_WT]
-    target = min(_box_entry_in(R_WT @ R_TG, p_BT - R_WT @ p_TG, d_W, half)
+    p_TB_W = p_WB - truth[_P_WT]
+    target = min(_box_entry_in(R_WT @ R_TG, p_TB_W - R_WT @ p_TG, d_W, half)
                  for R_TG, p_TG, half in boxes)
     return (float(target), True) if target < ground else (float(ground), False)
 
