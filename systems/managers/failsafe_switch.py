@@ -112,6 +112,7 @@ class FailsafeSwitch(CommandSwitch):
         # The command forwarded reads the state and the two commands only (not the decision).
         everything = self._declare_switching(params.period, {
             self.all_state_ticket(), *(port.ticket() for port in self._commands)})
+        self._last_command_group = int(self._last_command)
         for index, name in enumerate(("controller", "failsafe")):
             self.DeclareVectorOutputPort(
                 f"{name}.active", 1, lambda context, output, index=index: output.SetAtIndex(
@@ -139,7 +140,7 @@ class FailsafeSwitch(CommandSwitch):
         x = self._x(context)
         command = self._commands[int(self._in_failsafe(x))].Eval(context)
         if not command_is_usable(command):
-            command = context.get_discrete_state(self._last_command).get_value()
+            command = context.get_discrete_state().get_value(self._last_command_group)
         output.SetFromVector(command)
 
     def _calc_status(self, context, output):
@@ -157,7 +158,7 @@ class FailsafeSwitch(CommandSwitch):
         x = self._x(context)   # what the output forwards
         command = self._commands[int(self._in_failsafe(x))].Eval(context)
         if command_is_usable(command):
-            discrete_state.set_value(self._last_command, command)
+            discrete_state.set_value(self._last_command_group, command)
 
     def _decide(self, context) -> np.ndarray:
         """The switch's state after this tick (cached; do not modify it)."""
