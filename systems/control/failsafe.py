@@ -81,6 +81,7 @@ _ARM, _THRUST = FC_COMMAND.slice("arm").start, FC_COMMAND.slice("thrust").start
 _Z_EB, _V_EB = STATE_ESTIMATE.slice("p_EB").start + 2, STATE_ESTIMATE.slice("v_EB")
 _HEADING = STATE_ESTIMATE.slice("heading").start
 _FRAME_COUNTER = STATE_ESTIMATE.slice("frame_counter").start
+_VAR_V_Z = STATE_ESTIMATE.slice("var_pv").start + 5    # var_pv: p (3) then v (3)
 
 
 class FailsafeController(Controller):
@@ -106,6 +107,7 @@ class FailsafeController(Controller):
         self._mass_seen_group, self._height_seen_group, self._velocity_seen_group = map(
             int, (self._mass_seen, self._height_seen, self._velocity_seen))
         self._mass_bounds = tuple((np.asarray(params.mass_range) * vehicle.mass).tolist())
+        self._max_speed_var = params.max_speed_std ** 2
         self.DeclareStateOutputPort("desired_acceleration", self._acceleration)
 
     def flying_mass(self, command: np.ndarray) -> float:
@@ -127,8 +129,7 @@ class FailsafeController(Controller):
 
     def usable(self, estimate) -> bool:
         """A valid estimate (not None) whose vertical speed can tell a touchdown."""
-        return estimate is not None and \
-            STATE_ESTIMATE.get(estimate, "var_pv")[5] <= self._p.max_speed_std ** 2
+        return estimate is not None and estimate[_VAR_V_Z] <= self._max_speed_var
 
     def _update_inactive(self, context, discrete_state) -> None:
         """Status INACTIVE; the issued command's mass into m_e; the height last seen."""
@@ -142,7 +143,7 @@ class FailsafeController(Controller):
         mass = self.flying_mass(self._last.Eval(context))
         if math.isnan(mass):
             return
-        seen = context.get_discrete_state().get_value(self._mass_seen_group)[0]
+        seen = context.get_discrete_state().get_value(self._mass_seen_group).tolist()[0]
         alpha = min(1.0, self._period / self._p.mass_filter_time) \
             if self._p.mass_filter_time > 0 else 1.0
         discrete_state.set_value(self._mass_seen_group, np.array([

@@ -73,6 +73,10 @@ _REFERENCE_V_XY = slice(_REFERENCE_V.start, _REFERENCE_V.start + 2)
 _P_EB = STATE_ESTIMATE.slice("p_EB")
 _FC_MODE, _FC_FAILSAFE = FC_STATUS.slice("mode").start, float(ActiveMode.FAILSAFE_DESCENT)
 _NO_CAUSE = FailsafeCause.NONE
+_STATUS_DEFAULT = MANAGER_STATUS.vector()
+_STATUS_ACTIVE, _STATUS_MODE, _STATUS_ERROR, _STATUS_CAUSE, _STATUS_SWITCHES = (
+    MANAGER_STATUS.slice(field).start for field in (
+        "active", "mode", "control_error", "failsafe_cause", "switches"))
 
 
 class FailsafeSwitch(CommandSwitch):
@@ -108,10 +112,11 @@ class FailsafeSwitch(CommandSwitch):
         # The command forwarded reads the state and the two commands only (not the decision).
         everything = self._declare_switching(params.period, {
             self.all_state_ticket(), *(port.ticket() for port in self._commands)})
+        self._last_command_group = int(self._last_command)
         for index, name in enumerate(("controller", "failsafe")):
             self.DeclareVectorOutputPort(
-                f"{name}.active", 1, lambda context, output, index=index: output.SetFromVector(
-                    [float(self._failsafe_after(context) == index)]), everything)
+                f"{name}.active", 1, lambda context, output, index=index: output.SetAtIndex(
+                    0, float(self._failsafe_after(context) == index)), everything)
         self.DeclareVectorOutputPort(
             "arm", 2, lambda context, output: output.SetFromVector(
                 [1.0, 1.0] if self._in_failsafe(self._x(context)) else self._arm.Eval(context)),
@@ -135,22 +140,25 @@ class FailsafeSwitch(CommandSwitch):
         x = self._x(context)
         command = self._commands[int(self._in_failsafe(x))].Eval(context)
         if not command_is_usable(command):
-            command = context.get_discrete_state(self._last_command).get_value()
+            command = context.get_discrete_state().get_value(self._last_command_group)
         output.SetFromVector(command)
 
     def _calc_status(self, context, output):
+        # (MANAGER_STATUS.vector(active=, mode=, control_error=, failsafe_cause=, switches=),
+        # written by index into a copy of the layout's defaults)
         x = self._x(context)
         failsafe = float(self._in_failsafe(x))
-        output.SetFromVector(MANAGER_STATUS.vector(
-            active=failsafe, mode=x[_MODE], control_error=x[_ERROR], failsafe_cause=x[_CAUSE],
-            switches=failsafe))
+        y = _STATUS_DEFAULT.copy()
+        y[_STATUS_ACTIVE] = y[_STATUS_SWITCHES] = failsafe
+        y[_STATUS_MODE], y[_STATUS_ERROR], y[_STATUS_CAUSE] = x[_MODE], x[_ERROR], x[_CAUSE]
+        output.SetFromVector(y)
 
     def _update(self, context, discrete_state):
         discrete_state.set_value(self._state_group, self._decide(context))
         x = self._x(context)   # what the output forwards
         command = self._commands[int(self._in_failsafe(x))].Eval(context)
         if command_is_usable(command):
-            discrete_state.set_value(self._last_command, command)
+            discrete_state.set_value(self._last_command_group, command)
 
     def _decide(self, context) -> np.ndarray:
         """The switch's state after this tick (cached; do not modify it)."""
@@ -188,8 +196,8 @@ class FailsafeSwitch(CommandSwitch):
     def _chase_allowance(self, reference: np.ndarray) -> float:
         """v^2 / (2 a): how far a vehicle accelerating at `chase_acceleration` falls behind a
         reference moving horizontally at v before it is up to speed."""
-        v = reference[_REFERENCE_V_XY]
-        return float(v @ v) / (2.0 * self._p.chase_acceleration)
+        v_x, v_y = reference[_REFERENCE_V_XY].tolist()   # (v @ v: the same sum, as floats)
+        return (v_x * v_x + v_y * v_y) / (2.0 * self._p.chase_acceleration)
 
     def _follow_reference(self, x: np.ndarray, reference: np.ndarray, now: float, flying: bool,
                           estimate) -> None:
@@ -204,7 +212,8 @@ class FailsafeSwitch(CommandSwitch):
                 return
         p = reference[_REFERENCE_P]
         allowance = max(0.0, x[_ALLOWANCE] - self._p.step_speed * self._p.period)
-        if (p != x[_P_REF]).any() and all_finite(reference):   # (NaN: changed)
+        changed = any(a != b for a, b in zip(p.tolist(), x[_P_REF].tolist()))   # (NaN: changed)
+        if changed and all_finite(reference):
             if all_finite(x[_P_REF]):
                 allowance += norm(p - x[_P_REF] - x[_V_REF] * (now - x[_T_REF]))
             x[_P_REF], x[_V_REF], x[_T_REF] = p, reference[_REFERENCE_V], now

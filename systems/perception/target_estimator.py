@@ -103,7 +103,8 @@ PERCEPTION_STATUS = VectorLayout("perception_status", [
 
 
 # the state estimate's fields recorded at every tick
-_STAMP, _FRAME_COUNTER = (STATE_ESTIMATE.slice(field).start for field in ("stamp", "frame_counter"))
+_STAMP, _FRAME_COUNTER, _VALID = (STATE_ESTIMATE.slice(field).start for field in (
+    "stamp", "frame_counter", "valid"))
 _P_EB, _Q_EB, _V_EB, _P_EO = (STATE_ESTIMATE.slice(field) for field in (
     "p_EB", "q_EB", "v_EB", "p_EO"))
 
@@ -219,7 +220,7 @@ class TargetEstimator(LeafSystem):
         # Drake hands the update a copy of the state (EstimatorState.__deepcopy__): change it there
         st = state.get_mutable_abstract_state(self._state).get_value()
         estimate = self._estimate.Eval(context)
-        if STATE_ESTIMATE.get(estimate, "valid") > 0.5:
+        if estimate[_VALID] > 0.5:
             self._record_pose(st, estimate)
         frame = self._frame.Eval(context)
         if frame.valid and frame.calibration is not None and not frame.stamp <= st.last_frame:
@@ -237,7 +238,7 @@ class TargetEstimator(LeafSystem):
                        STATE_ESTIMATE.get(estimate, "q_OldNew"))
             st.poses.clear()
             st.frame_counter = counter
-        elif all_finite(st.p_EO) and (p_EO != st.p_EO).any():
+        elif all_finite(st.p_EO) and p_EO.tolist() != st.p_EO.tolist():   # (as the arrays' !=)
             _shift(st, p_EO - st.p_EO)
         st.p_EO = p_EO.copy()
         st.poses.add(estimate[_STAMP], estimate[_P_EB], estimate[_Q_EB], estimate[_V_EB])

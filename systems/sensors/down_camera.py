@@ -26,6 +26,7 @@ from pydrake.systems.sensors import ImageRgba8U
 
 from alight.systems.boundary import CameraFrame
 from alight.systems.params import bounded, choice
+from alight.systems.rotations import norm
 from alight.systems.sensors.down_camera_lens import Lens
 
 
@@ -383,7 +384,7 @@ class GeometricDownCamera(TimedCamera):
 def _moved(X_WA: RigidTransform, V_WA: SpatialVelocity, dt: float) -> RigidTransform:
     """The pose `dt` later at constant spatial velocity (first order in the rotation vector)."""
     w = V_WA.rotational()
-    rate = np.linalg.norm(w)
+    rate = norm(w)
     axis = w / rate if rate > 0 else np.array([0.0, 0.0, 1.0])
     R = RotationMatrix(AngleAxis(float(rate * dt), axis)) @ X_WA.rotation()
     return RigidTransform(R, X_WA.translation() + V_WA.translational() * dt)

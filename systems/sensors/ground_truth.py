@@ -1,8 +1,10 @@
 """The simulation-only `ground_truth` output (DESIGN.md): never read by an onboard system."""
+import math
+
 from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import CONTACTS, GROUND_TRUTH
-from alight.systems.rotations import norm, rotation_matrix
+from alight.systems.rotations import rotation_matrix, unit_floats
 
 
 class GroundTruth(LeafSystem):
@@ -19,7 +21,7 @@ class GroundTruth(LeafSystem):
     def __init__(self, num_rotors: int, with_target: bool = False):
         super().__init__()
         self._state = self.DeclareVectorInputPort("body_state", 13)
-        self._wind = self.DeclareVectorInputPort("wind", 3)
+        self._wind_port = self.DeclareVectorInputPort("wind", 3)
         self._command = self.DeclareVectorInputPort("motor_command", num_rotors)
         self._thrust = self.DeclareVectorInputPort("rotor_thrust", num_rotors)
         self._target = self.DeclareVectorInputPort("target_state", 13) if with_target else None
@@ -27,32 +29,38 @@ class GroundTruth(LeafSystem):
         # A pure function of the inputs (not of the time): recomputed only when they change.
         self.DeclareVectorOutputPort("ground_truth", GROUND_TRUTH.size, self._calc,
                                      prerequisites_of_calc={self.all_input_ports_ticket()})
-        self._at = {field: GROUND_TRUTH.slice(field) for field, _ in GROUND_TRUTH.fields}
-        # Two runs of fields written at once: the target's (p_WT to target_present, their
-        # defaults without a target) and the CONTACTS fields (in their order, at the end).
-        self._target_fields = slice(self._at["p_WT"].start, self._at["target_present"].stop)
+        # The layout's fields in order: the vehicle's state, the inputs copied, the target's, then
+        # the CONTACTS fields (their order, at the end); written by one slice each run.
+        assert [f for f, _ in GROUND_TRUTH.fields] == [
+            "p_WB", "q_WB", "v_WB", "w_WB_B", "v_WA", "motor_command", "rotor_thrust", "p_WT",
+            "q_WT", "v_WT", "target_present", *(f for f, _ in CONTACTS.fields)]
+        at = {field: GROUND_TRUTH.slice(field) for field, _ in GROUND_TRUTH.fields}
+        self._vehicle = slice(0, at["w_WB_B"].start)           # p_WB, q_WB, v_WB
+        self._w = at["w_WB_B"]
+        self._wind, self._motors, self._thrusts = (at[f] for f in (
+            "v_WA", "motor_command", "rotor_thrust"))
+        self._target_fields = slice(at["p_WT"].start, at["target_present"].stop)
         self._no_target = GROUND_TRUTH.vector()[self._target_fields]
-        self._contact_fields = slice(self._at[CONTACTS.fields[0][0]].start, GROUND_TRUTH.size)
-        assert GROUND_TRUTH.fields[-len(CONTACTS.fields):] == CONTACTS.fields
+        self._contact_fields = slice(at[CONTACTS.fields[0][0]].start, GROUND_TRUTH.size)
 
     def _calc(self, context, output):
-        # Each field written in place by its slice (no per-call packing of keyword arguments).
-        at, y = self._at, output.get_mutable_value()
-        x = self._state.Eval(context)
-        q_WB = x[:4] / norm(x[:4])
-        y[at["p_WB"]] = x[4:7]
-        y[at["q_WB"]] = q_WB
-        y[at["v_WB"]] = x[10:13]
-        y[at["w_WB_B"]] = rotation_matrix(q_WB).T @ x[7:10]
-        y[at["v_WA"]] = self._wind.Eval(context)
-        y[at["motor_command"]] = self._command.Eval(context)
-        y[at["rotor_thrust"]] = self._thrust.Eval(context)
+        # Each run of fields written in place by one slice (no per-call packing or lookups); the
+        # quaternions' q / |q| and R_WB^T w_WB on the elements as Python floats: the same sums in
+        # the same order as NumPy's (its dot and matrix-vector product of 3 or 4 elements).
+        y = output.get_mutable_value()
+        x = self._state.Eval(context).tolist()
+        q_WB = unit_floats(*x[:4]) or [math.nan] * 4   # (x[:4] / norm(x[:4]))
+        R = rotation_matrix(q_WB).tolist()
+        w0, w1, w2 = x[7:10]
+        y[self._vehicle] = [*x[4:7], *q_WB, *x[10:13]]
+        y[self._w] = [R[0][i] * w0 + R[1][i] * w1 + R[2][i] * w2 for i in range(3)]
+        y[self._wind] = self._wind_port.Eval(context)
+        y[self._motors] = self._command.Eval(context)
+        y[self._thrusts] = self._thrust.Eval(context)
         if self._target is None:
             y[self._target_fields] = self._no_target
         else:
-            x_T = self._target.Eval(context)
-            y[at["p_WT"]] = x_T[4:7]
-            y[at["q_WT"]] = x_T[:4] / norm(x_T[:4])
-            y[at["v_WT"]] = x_T[10:13]
-            y[at["target_present"]] = 1.0
+            x_T = self._target.Eval(context).tolist()
+            y[self._target_fields] = [*x_T[4:7], *(unit_floats(*x_T[:4]) or [math.nan] * 4),
+                                      *x_T[10:13], 1.0]
         y[self._contact_fields] = self._contacts.Eval(context)

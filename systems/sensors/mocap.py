@@ -21,8 +21,11 @@ from alight.systems.rotations import (product_floats, quaternion_from_rotation_v
 _P_WB, _Q_WB = GROUND_TRUTH.slice("p_WB"), GROUND_TRUTH.slice("q_WB")
 _P_EB, _V_EB, _A_EB, _Q_EB, _VAR_PV = (STATE_ESTIMATE.slice(field) for field in (
     "p_EB", "v_EB", "a_EB", "q_EB", "var_pv"))
-_STAMP, _HEADING, _HEADING_RATE, _VALID = (STATE_ESTIMATE.slice(field).start for field in (
-    "stamp", "heading", "heading_rate", "valid"))
+_HEADING, _VALID = (STATE_ESTIMATE.slice(field).start for field in ("heading", "valid"))
+# the fields written at every tick, in the layout's order
+_CHANGING = slice(STATE_ESTIMATE.slice("stamp").start, _VAR_PV.stop)
+assert [f for f, _ in STATE_ESTIMATE.fields][:8] == [
+    "stamp", "p_EB", "v_EB", "a_EB", "q_EB", "heading", "heading_rate", "var_pv"]
 
 
 @dc.dataclass
@@ -59,7 +62,7 @@ class Mocap(LeafSystem):
     def _update(self, context, discrete_state):
         # On the elements as Python floats (this runs at every tick): the operations, element by
         # element, of the NumPy expressions they stand for.
-        previous = context.get_discrete_state().get_value(self._xd_group)
+        previous = context.get_discrete_state().get_value(self._xd_group).tolist()
         truth = self._truth.Eval(context)
         noise = self._noise.Eval(context).tolist()
         std = self._p.position_noise_std
@@ -72,18 +75,16 @@ class Mocap(LeafSystem):
         if first:   # no velocity from one sample (the previous state is the zero initial one)
             v, a = [0.0] * 3, [0.0] * 3
         else:
-            raw_v = [(p_i - u_i) / dt for p_i, u_i in zip(p, previous[_P_EB].tolist())]
-            v_previous = previous[_V_EB].tolist()
+            raw_v = [(p_i - u_i) / dt for p_i, u_i in zip(p, previous[_P_EB])]
+            v_previous = previous[_V_EB]
             v = [alpha * u_i + (1 - alpha) * r_i for u_i, r_i in zip(v_previous, raw_v)]
             a = [(v_i - u_i) / dt for v_i, u_i in zip(v, v_previous)]
         eta = quaternion_heading(*q)
         eta_rate = 0.0 if first else np.angle(np.exp(1j * (eta - previous[_HEADING]))) / dt
         var_p = std ** 2
         var_v = 2 * var_p / dt ** 2 * (1 - alpha) / (1 + alpha)
-        # written by index into the fields that change (the others: `_constant`)
+        # the fields that change, stamp to var_pv, written by one slice (the others: `_constant`)
         x = self._constant.copy()
-        x[_STAMP] = context.get_time()
-        x[_P_EB], x[_V_EB], x[_A_EB], x[_Q_EB] = p, v, a, q
-        x[_HEADING], x[_HEADING_RATE] = eta, eta_rate
-        x[_VAR_PV] = [var_p] * 3 + [var_v] * 3
+        x[_CHANGING] = [context.get_time(), *p, *v, *a, *q, eta, eta_rate, var_p, var_p, var_p,
+                        var_v, var_v, var_v]
         discrete_state.set_value(self._xd_group, x)

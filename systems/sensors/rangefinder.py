@@ -40,10 +40,9 @@ class Rangefinder(SampledSensor):
         self._min_cos_tilt = np.cos(np.radians(params.max_tilt))
 
     def measure(self, t, truth, noise, memory):
-        cos_tilt = rotation_matrix(GROUND_TRUTH.get(truth, "q_WB"))[2, 2]
-        valid = cos_tilt > self._min_cos_tilt and not in_windows(
-            t, self._p.outages)
-        surface, _ = ray_hit(truth, DOWN_B, self._boxes)
+        R_WB = rotation_matrix(GROUND_TRUTH.get(truth, "q_WB"))
+        valid = R_WB[2, 2] > self._min_cos_tilt and not in_windows(t, self._p.outages)
+        surface, _ = ray_hit(truth, DOWN_B, self._boxes, R_WB)
         distance = min(surface, 2 * self._p.max_range) + self._p.noise_std * noise[0]
         valid = valid and distance <= self._p.max_range
         return RANGE.pack(stamp=t, range=distance, var=max(self._p.noise_std, 1e-3) ** 2,

@@ -16,6 +16,9 @@ from alight.systems.boundary import GROUND_TRUTH
 from alight.systems.rotations import rotation_matrix
 
 PLATFORM_BODY = "platform"   # the body whose frame is T (systems/target/vehicle.py)
+# the ground truth's fields a ray reads (by index: this runs at every sample)
+_P_WB, _Q_WB, _P_WT, _Q_WT = (GROUND_TRUTH.slice(f) for f in ("p_WB", "q_WB", "p_WT", "q_WT"))
+_TARGET_PRESENT = GROUND_TRUTH.slice("target_present").start
 
 
 @functools.lru_cache(maxsize=8)
@@ -38,20 +41,31 @@ def target_boxes(model: str) -> tuple:
     return tuple(boxes)
 
 
-def ray_hit(truth: np.ndarray, d_B: np.ndarray, boxes: tuple) -> tuple[float, bool]:
+def ray_hit(truth: np.ndarray, d_B: np.ndarray, boxes: tuple,
+            R_WB: np.ndarray | None = None) -> tuple[float, bool]:
     """Distance [m] from the body's origin along `d_B` (a unit direction in B) to the first
-    surface, and whether that surface is the target's (inf: nothing hit)."""
-    R_WB = rotation_matrix(GROUND_TRUTH.get(truth, "q_WB"))
-    p_WB = GROUND_TRUTH.get(truth, "p_WB")
+    surface, and whether that surface is the target's (inf: nothing hit). `R_WB`: the truth's
+    rotation_matrix(q_WB), when the caller has it."""
+    if R_WB is None:
+        R_WB = rotation_matrix(truth[_Q_WB])
+    p_WB = truth[_P_WB]
     d_W = R_WB @ d_B
     ground = max(p_WB[2], 0.0) / -d_W[2] if d_W[2] < -1e-9 else np.inf
-    if not boxes or GROUND_TRUTH.get(truth, "target_present") < 0.5:
+    if not boxes or truth[_TARGET_PRESENT] < 0.5:
         return float(ground), False
-    R_WT = rotation_matrix(GROUND_TRUTH.get(truth, "q_WT"))
-    p_WT = GROUND_TRUTH.get(truth, "p_WT")
-    target = min(_box_entry((R_WT @ R_TG).T @ (p_WB - p_WT - R_WT @ p_TG), (R_WT @ R_TG).T @ d_W,
-                            half) for R_TG, p_TG, half in boxes)
+    R_WT = rotation_matrix(truth[_Q_WT])
+    p_TB_W = p_WB - truth[_P_WT]
+    target = min(_box_entry_in(R_WT @ R_TG, p_TB_W - R_WT @ p_TG, d_W, half)
+                 for R_TG, p_TG, half in boxes)
     return (float(target), True) if target < ground else (float(ground), False)
+
+
+def _box_entry_in(R_WG: np.ndarray, p_GB_W: np.ndarray, d_W: np.ndarray, half: np.ndarray
+                  ) -> float:
+    """`_box_entry` of the ray from p_GB_W (in W, from the box's centre) along d_W against the
+    box G of orientation R_WG: both re-expressed in G."""
+    R_GW = R_WG.T
+    return _box_entry(R_GW @ p_GB_W, R_GW @ d_W, half)
 
 
 def _box_entry(p: np.ndarray, d: np.ndarray, half: np.ndarray) -> float:

@@ -175,7 +175,7 @@ class TargetMotion(LeafSystem):
     def _calc(self, context, output: BasicVector):
         t = context.get_time()
         if self._profile == "field_test":
-            output.SetFromVector(self._field_output(context, t))
+            output.SetFromVector(self._field_output(self._field_state(context), t))
             return
         v = self._schedule.speed(t)
         s = self._schedule.distance(t)
@@ -194,8 +194,9 @@ class TargetMotion(LeafSystem):
         """x, y, heading, speed, turn rate, pull time left, pull side, time of update."""
         return context.get_discrete_state().get_value(self._state_group).tolist()
 
-    def _field_output(self, context, t) -> list[float]:
-        x, y, psi, speed, _, _, _, t_k = state = self._field_state(context)
+    def _field_output(self, state: list[float], t) -> list[float]:
+        """The desired state at t from the field state (`_field_state`) of the last update."""
+        x, y, psi, speed, _, _, _, t_k = state
         v = speed * _ramp(t, self._field.ramp_time)
         omega = self._omega(state)
         dt = t - t_k
@@ -246,8 +247,9 @@ class TargetMotion(LeafSystem):
     def _field_update(self, context, discrete_state):
         f = self._field
         t = context.get_time()
-        x, y, psi, _, _, _ = self._field_output(context, t)
-        _, _, _, speed, rate, pull_left, side, _ = self._field_state(context)
+        state = self._field_state(context)
+        x, y, psi, _, _, _ = self._field_output(state, t)
+        _, _, _, speed, rate, pull_left, side, _ = state
         n = self._noise.Eval(context).tolist()
         dt = f.period
         speed += (f.mean_speed - speed) * dt / f.speed_time + self._speed_drive * n[0]

@@ -111,11 +111,13 @@ class PlatformState(LeafSystem):
 
     def _calc(self, context, output):
         # written in place: [q_WT, p_WT] then V_WT's coefficients [w_WT, v_WT]
-        X_WT = self._poses.Eval(context)[self._index]
+        # (EvalAbstract(...).get_value(): the same list as Eval, with less pydrake overhead)
+        X_WT = self._poses.EvalAbstract(context).get_value()[self._index]
+        V_WT = self._velocities.EvalAbstract(context).get_value()[self._index]
         y = output.get_mutable_value()
         y[:4] = X_WT.rotation().ToQuaternion().wxyz()
         y[4:7] = X_WT.translation()
-        y[7:] = self._velocities.Eval(context)[self._index].get_coeffs()
+        y[7:] = V_WT.get_coeffs()
 
 
 def _abstract_list(value):
