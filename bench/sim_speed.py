@@ -7,7 +7,7 @@ as the in-process reference, the same figures for the bare MultibodyPlant of the
 model, SAP contact and step, no rotors, controllers or sensors) and of the landing world (the
 hexacopter, the ground and the car on its PD-driven joints), with the ratios.
 
-Cases (`--cases`, default all but `rendered` unless `--rendered`):
+Cases (`--cases`, default hover,land,vio; `--rendered` adds `rendered`):
 - `hover`: the simulated vehicle flown by a scripted pilot (arm, climb to 2 m, hover), no logging;
 - `land`: `alight land --target-speed 2 --seed 0 --estimator mocap` (field scenario, geometric
   camera, mocap: the issue's reference case), the
@@ -15,7 +15,9 @@ Cases (`--cases`, default all but `rendered` unless `--rendered`):
   folder (build and writing are printed apart and amortized in the "whole" figure);
 - `vio`: the same on VIO (the scenario's default odometry, the geometric RGB-D source);
 - `rendered`: the same with the rendered down camera (`vehicle.down_camera.source: rendered`,
-  mocap; slow).
+  mocap; slow);
+- `managed`: the same mission on the managed stack (control manager, trackers, linear MPC through
+  the manager; `onboard.stack: landing_managed`, mocap), only when named in `--cases`.
 
 With `--profile` (default) each case is flown a second time with every Python LeafSystem callback
 (output calculations, update and publish events, the runner's stop monitor) wrapped by a
@@ -43,10 +45,11 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-CASES = ("hover", "land", "vio", "rendered")
+CASES = ("hover", "land", "vio", "rendered", "managed")
 # (mocap named: VIO is the field scenario's default odometry; these cases keep their sensing)
 CASE_OVERRIDES = {"land": ["onboard.estimator: mocap"], "vio": ["onboard.estimator: vio"],
-                  "rendered": ["vehicle.down_camera.source: rendered", "onboard.estimator: mocap"]}
+                  "rendered": ["vehicle.down_camera.source: rendered", "onboard.estimator: mocap"],
+                  "managed": ["onboard.stack: landing_managed", "onboard.estimator: mocap"]}
 
 
 # --- the per-system profiler ------------------------------------------------------------------
@@ -350,7 +353,8 @@ def measure_mission(case: str, args) -> Measurement:
     score = score_landing(RunLog(run_dir), impact.vertical_speed, impact.horizontal_speed)
     shutil.rmtree(run_dir, ignore_errors=True)
     label = {"land": "land: geometric camera, mocap", "vio": "land: geometric camera, VIO",
-             "rendered": "land: rendered camera, mocap"}[case]
+             "rendered": "land: rendered camera, mocap",
+             "managed": "land: managed stack, mocap"}[case]
     result = Measurement(label, simulated, wall, cpu, steps, load_cpu + build_cpu, write_cpu,
                          score.row())
     if args.profile:
