@@ -154,6 +154,7 @@ def test_hil_fly_visits_the_waypoints_on_the_channel_mocap_and_lands(tmp_path):
 
 
 @pytest.mark.mission
+@realtime
 def test_hil_land_finds_the_moving_target_through_the_channel_and_lands_on_it(tmp_path):
     """The field test at 2 m/s with a 14 s approach (models/scenario_field_hil.yaml), both ends
     started by `alight hil --local` with no other flag: the autopilot's world (the car) starts at
