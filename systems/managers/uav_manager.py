@@ -32,6 +32,7 @@ from alight.systems.estimation.frames import reexpress_point
 from alight.systems.managers.control_manager import MANAGER_STATUS, ManagerMode, SafetyArea
 from alight.systems.params import bounded
 from alight.systems.rotations import rotation_matrix
+from alight.systems.state_copy import FieldwiseCopy
 from alight.systems.tracking.goal import TrackerGoal
 from alight.systems.tracking.landoff_tracker import LandoffGoal
 from alight.systems.tracking.speed_tracker import SpeedGoal
@@ -114,7 +115,8 @@ class UavManagerParams:
 
 
 @dc.dataclass
-class UavMemory:
+class UavMemory(FieldwiseCopy):
+    """The manager's abstract state (copied field by field, `FieldwiseCopy`)."""
     phase: Phase = Phase.IDLE
     routine: Routine = Routine.NONE
     command_id: int = 0

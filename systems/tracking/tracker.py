@@ -9,9 +9,7 @@ neither it cannot start: BAD_START). When the state estimate's `frame_counter` c
 arbiter switched estimator frames, M Sec. 3.5), the tracker re-expresses its states in the new
 frame before it computes.
 """
-import copy
 import dataclasses as dc
-import enum
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -19,6 +17,7 @@ from pydrake.systems.framework import LeafSystem
 
 from alight.systems.boundary import REFERENCE, STATE_ESTIMATE, TRACKER_STATUS, estimate_is_valid
 from alight.systems.estimation.frames import frame_switch
+from alight.systems.state_copy import FieldwiseCopy
 from alight.systems.timing import ComputeTimer
 
 # `tracker_status.reason` codes every tracker shares (its own enum repeats them): the manager reads
@@ -28,43 +27,12 @@ INACTIVE, BAD_START = 1, 4
 
 
 @dc.dataclass
-class TrackerMemory:
+class TrackerMemory(FieldwiseCopy):
     """A tracker's abstract state: what the role keeps (active at the last tick; the frame counter
-    of the estimator frame the states are in, NaN: none). Trackers extend it with their own."""
+    of the estimator frame the states are in, NaN: none). Trackers extend it with their own.
+    Copied field by field (`FieldwiseCopy`): Drake clones it twice per tick."""
     active: bool = dc.field(default=False, kw_only=True)
     frame_counter: float = dc.field(default=np.nan, kw_only=True)
-
-    def __deepcopy__(self, memo) -> "TrackerMemory":
-        """An independent copy, made for Drake's two clones of the abstract state per tick
-        (copy.deepcopy, which walked every field and goal): arrays are copied, values that
-        cannot change in place (numbers, strings, enums, None, tuples of them, frozen
-        dataclasses such as the goals) shared, anything else deep-copied."""
-        new = object.__new__(type(self))
-        memo[id(self)] = new
-        fields = new.__dict__
-        for name, value in self.__dict__.items():
-            if isinstance(value, np.ndarray) and not value.dtype.hasobject:
-                copied = memo.get(id(value))
-                if copied is None:
-                    copied = memo[id(value)] = value.copy(order="K")  # (as deepcopy)
-                fields[name] = copied
-            else:
-                fields[name] = value if _immutable(value) else copy.deepcopy(value, memo)
-        return new
-
-
-_SCALARS = (bool, int, float, str, bytes, type(None), np.generic, enum.Enum)
-
-
-def _immutable(value) -> bool:
-    """A value no tracker changes in place: a scalar, a string, an enum, None, a tuple of those,
-    or a frozen dataclass."""
-    if isinstance(value, _SCALARS):
-        return True
-    if isinstance(value, tuple):
-        return all(isinstance(item, _SCALARS) for item in value)
-    params = getattr(type(value), "__dataclass_params__", None)
-    return params is not None and params.frozen
 
 
 def rest_at_estimate(estimate: np.ndarray, stamp: float) -> np.ndarray:
