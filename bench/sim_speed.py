@@ -17,7 +17,14 @@ Cases (`--cases`, default hover,land,vio; `--rendered` adds `rendered`):
 - `rendered`: the same with the rendered down camera (`vehicle.down_camera.source: rendered`,
   mocap; slow);
 - `managed`: the same mission on the managed stack (control manager, trackers, linear MPC through
-  the manager; `onboard.stack: landing_managed`, mocap), only when named in `--cases`.
+  the manager; `onboard.stack: landing_managed`, mocap), only when named in `--cases`;
+- `floor`: what a Python LeafSystem costs Drake's simulator at every plant step even when it
+  computes nothing (the bare hexacopter plant beside 25 idle Python systems, one output port
+  each, against 25 idle C++ ones): after every unrestricted update the Simulator asks each leaf
+  system for its witness functions, pydrake's trampoline looks for a Python override of
+  `DoGetWitnessFunctions` on each Python one, and the plant's step is an unrestricted update when
+  its output ports are sampled (the vehicle's plant); printed with the plant's sampled ports and
+  without. Only when named in `--cases`.
 
 With `--profile` (default) each case is flown a second time with every Python LeafSystem callback
 (output calculations, update and publish events, the runner's stop monitor) wrapped by a
@@ -45,7 +52,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-CASES = ("hover", "land", "vio", "rendered", "managed")
+CASES = ("hover", "land", "vio", "rendered", "managed", "floor")
 # (mocap named: VIO is the field scenario's default odometry; these cases keep their sensing)
 CASE_OVERRIDES = {"land": ["onboard.estimator: mocap"], "vio": ["onboard.estimator: vio"],
                   "rendered": ["vehicle.down_camera.source: rendered", "onboard.estimator: mocap"],
@@ -272,6 +279,53 @@ def bare_plant_diagram(with_world: bool = False):
     return builder.Build()
 
 
+class _IdlePythonSystem(LeafSystem):
+    """A Python leaf system that computes nothing unless its output is read (never, here)."""
+
+    def __init__(self):
+        super().__init__()
+        self.DeclareVectorOutputPort("y", 1, lambda context, output: None)
+
+
+def floor_diagram(count: int, python: bool, sampled: bool):
+    """The bare hexacopter plant (its step, sampled ports or not) beside `count` idle leaf
+    systems, Python or C++ (ConstantVectorSource)."""
+    from pydrake.systems.primitives import ConstantVectorSource
+    from alight.diagrams.world.sim_vehicle import load_sim_vehicle_config
+    from alight.systems.plant.hexacopter import add_hexacopter
+    config = load_sim_vehicle_config()
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(
+        time_step=config.time_step, discrete_contact_approximation="sap",
+        contact_model="point", use_sampled_output_ports=sampled), builder)
+    add_hexacopter(plant, config.airframe)
+    plant.Finalize()
+    for _ in range(count):
+        builder.AddSystem(_IdlePythonSystem() if python else ConstantVectorSource([0.0]))
+    return builder.Build()
+
+
+def measure_floor(duration: float, repeats: int, count: int = 25) -> list[str]:
+    """Lines: CPU us per idle leaf system per plant step, Python and C++, sampled ports or not."""
+    def per_step(python: bool, sampled: bool) -> tuple[float, int]:
+        best = None
+        for _ in range(repeats):
+            _, cpu, steps, _, _ = advance(floor_diagram(count, python, sampled), duration)
+            _, cpu_0, steps_0, _, _ = advance(floor_diagram(0, python, sampled), duration)
+            extra = (cpu / steps - cpu_0 / steps_0) / count
+            best = extra if best is None else min(best, extra)
+        return best, steps
+    lines = []
+    for sampled in (True, False):
+        (py, steps), (cpp, _) = per_step(True, sampled), per_step(False, sampled)
+        step = "unrestricted (sampled ports, the vehicle)" if sampled else \
+            "discrete (no sampled ports)"
+        lines.append(f"floor: plant step {step:42s} per idle leaf system per step: Python "
+                     f"{1e6 * py:5.2f} CPU us, C++ {1e6 * cpp:5.2f} CPU us ({steps / duration:.0f} steps/sim s; {count} "
+                     f"Python systems: {1e3 * count * py * steps / duration:.1f} CPU ms/sim s)")
+    return lines
+
+
 def measure_hover(duration: float, repeats: int, profile: bool,
                   per_callback: bool = False) -> Measurement:
     best = None
@@ -421,6 +475,9 @@ def main():
     for reference in (bare, world):
         print(reference.line(), flush=True)
     for case in cases:
+        if case == "floor":
+            print("\n".join(measure_floor(args.duration, args.repeats)) + "\n", flush=True)
+            continue
         result = measure_hover(args.duration, args.repeats, args.profile, args.callbacks) \
             if case == "hover" else measure_mission(case, args)
         print(result.line())
