@@ -322,7 +322,8 @@ def measure_floor(duration: float, repeats: int, count: int = 25) -> list[str]:
             "discrete (no sampled ports)"
         lines.append(f"floor: plant step {step:42s} per idle leaf system per step: Python "
                      f"{1e6 * py:5.2f} CPU us, C++ {1e6 * cpp:5.2f} CPU us "
-                     f"({steps / duration:.0f} steps/sim s; {count} Python systems: {1e3 * count * py * steps / duration:.1f} CPU ms/sim s)")
+                     f"({steps / duration:.0f} steps/sim s; {count} Python systems: "
+                     f"{1e3 * count * py * steps / duration:.1f} CPU ms/sim s)")
     return lines
 
 
