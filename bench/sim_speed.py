@@ -18,6 +18,7 @@ Cases (`--cases`, default hover,land,vio; `--rendered` adds `rendered`):
   mocap; slow);
 - `managed`: the same mission on the managed stack (control manager, trackers, linear MPC through
   the manager; `onboard.stack: landing_managed`, mocap), only when named in `--cases`;
+- each mission case also prints its diagram's leaf systems, Python and C++;
 - `floor`: what a Python LeafSystem costs Drake's simulator at every plant step even when it
   computes nothing (the bare hexacopter plant beside 25 idle Python systems, one output port
   each, against 25 idle C++ ones): after every unrestricted update the Simulator asks each leaf
@@ -198,6 +199,7 @@ class Measurement:
     per_callback: bool = False   # the table's rows are callbacks (--callbacks), not systems
     overhead: float = 0.0        # s, the profiler's own estimated cost in that run
     callbacks: int = 0
+    leaves: tuple = ()           # (Python, C++) leaf systems of the diagram
 
     def line(self) -> str:
         whole = (self.cpu + self.build_cpu + self.write_cpu) / self.simulated
@@ -385,6 +387,22 @@ def fly_mission(scenario, profiler: SystemProfiler | None = None):
     return (wall, cpu, steps, simulated, build_cpu), simulator, stack, diagram
 
 
+def count_leaves(diagram) -> tuple[int, int]:
+    """(Python, C++) leaf systems under `diagram` (each Python one costs every plant step:
+    the `floor` case)."""
+    from pydrake.systems.framework import Diagram
+    python = cpp = 0
+    for system in diagram.GetSystems():
+        if isinstance(system, Diagram):
+            sub = count_leaves(system)
+            python, cpp = python + sub[0], cpp + sub[1]
+        elif type(system).__module__.startswith("pydrake"):
+            cpp += 1
+        else:
+            python += 1
+    return python, cpp
+
+
 def measure_mission(case: str, args) -> Measurement:
     from alight.diagrams.analysis.landing import score_landing
     from alight.diagrams.running.run_log import RunLog, write_run_folder
@@ -392,7 +410,7 @@ def measure_mission(case: str, args) -> Measurement:
     start_cpu = time.process_time()
     scenario = mission_scenario(case, args.target_speed, args.seed, args.set)
     load_cpu = time.process_time() - start_cpu
-    (wall, cpu, steps, simulated, build_cpu), simulator, stack, _ = fly_mission(scenario)
+    (wall, cpu, steps, simulated, build_cpu), simulator, stack, diagram = fly_mission(scenario)
     run_dir = Path(tempfile.mkdtemp(prefix=f"sim_speed_{case}_"))
     start_cpu = time.process_time()
     context = simulator.get_context()
@@ -411,7 +429,7 @@ def measure_mission(case: str, args) -> Measurement:
              "rendered": "land: rendered camera, mocap",
              "managed": "land: managed stack, mocap"}[case]
     result = Measurement(label, simulated, wall, cpu, steps, load_cpu + build_cpu, write_cpu,
-                         score.row())
+                         score.row(), leaves=count_leaves(diagram))
     if args.profile:
         profiler = SystemProfiler()
         (_, cpu, _, _, _), _, _, diagram = fly_mission(scenario, profiler)
@@ -484,6 +502,8 @@ def main():
         print(result.line())
         if result.outcome:
             print(f"  outcome: {result.outcome}")
+        if result.leaves:
+            print(f"  leaf systems: {result.leaves[0]} Python, {result.leaves[1]} C++")
         per_sim = result.cpu / result.simulated
         print(f"  ratio CPU per sim s / bare hexacopter plant: "
               f"{per_sim / (bare.cpu / bare.simulated):.1f}; / bare landing world: "
