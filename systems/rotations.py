@@ -2,7 +2,7 @@
 
 pydrake.math (`RotationMatrix`, `RollPitchYaw`) is the reference; these avoid constructing Drake
 objects inside callbacks that run at every plant step. Tests check them against pydrake.
-The per-tick ones compute on Python floats (`_floats`): on 3- and 4-vectors that is several times
+The per-tick ones compute on Python floats (`float_list`): on 3- and 4-vectors that is several times
 faster than NumPy array arithmetic, whose per-call overhead dominates at this size. `norm` and
 `all_finite` are such per-tick stand-ins for np.linalg.norm and np.all(np.isfinite(...)).
 """
@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 
-def _floats(v) -> list[float]:
+def float_list(v) -> list[float]:
     """The elements of a short vector (array, list or tuple) as Python floats."""
     return v.tolist() if isinstance(v, np.ndarray) else [float(e) for e in v]
 
@@ -28,8 +28,8 @@ def all_finite(v: np.ndarray) -> bool:
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    a1, a2, a3 = _floats(a)
-    b1, b2, b3 = _floats(b)
+    a1, a2, a3 = float_list(a)
+    b1, b2, b3 = float_list(b)
     return np.array([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1])
 
 
@@ -43,7 +43,7 @@ def unit_floats(w: float, x: float, y: float, z: float) -> tuple[float, ...] | N
 
 def rotation_matrix(q: np.ndarray) -> np.ndarray:
     """R_WB of the unit quaternion q_WB = (w, x, y, z) (normalized here)."""
-    unit = unit_floats(*_floats(q))
+    unit = unit_floats(*float_list(q))
     if unit is None:
         return np.full((3, 3), np.nan)
     w, x, y, z = unit
@@ -55,7 +55,7 @@ def rotation_matrix(q: np.ndarray) -> np.ndarray:
 
 def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product a * b of (w, x, y, z) quaternions."""
-    return np.array(product_floats(*_floats(a), *_floats(b)))
+    return np.array(product_floats(*float_list(a), *float_list(b)))
 
 
 def product_floats(w1: float, x1: float, y1: float, z1: float,
@@ -73,8 +73,8 @@ def conjugate(q: np.ndarray) -> np.ndarray:
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Shortest-arc quaternion rotating unit vector a onto unit vector b."""
-    a1, a2, a3 = _floats(a)
-    b1, b2, b3 = _floats(b)
+    a1, a2, a3 = float_list(a)
+    b1, b2, b3 = float_list(b)
     q = [1.0 + (a1 * b1 + a2 * b2 + a3 * b3), a2 * b3 - a3 * b2, a3 * b1 - a1 * b3,
          a1 * b2 - a2 * b1]
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
@@ -87,7 +87,7 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def quaternion_from_rotation_vector(r: np.ndarray) -> np.ndarray:
-    x, y, z = _floats(r)
+    x, y, z = float_list(r)
     angle = math.sqrt(x * x + y * y + z * z)
     if not math.isfinite(angle):
         return np.full(4, np.nan)

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from alight.systems.params import bounded
-from alight.systems.rotations import _floats, unit_floats
+from alight.systems.rotations import float_list, unit_floats
 
 GRAVITY = 9.81
 NUM_STATES = 10
@@ -75,7 +75,7 @@ def discretize(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.
 
 def euler_pitch_roll_yaw(q_WB: np.ndarray) -> tuple[float, float, float]:
     """ZYX Euler angles (pitch theta, roll phi, yaw psi) of q_WB; for ZYX, yaw equals the heading."""
-    return euler_angles(*_floats(q_WB))
+    return euler_angles(*float_list(q_WB))
 
 
 def euler_angles(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
@@ -98,7 +98,7 @@ def euler_angles(w: float, x: float, y: float, z: float) -> tuple[float, float, 
 def euler_rates(phi: float, theta: float, w_B: np.ndarray) -> tuple[float, float]:
     """L(17): roll and pitch rates from body rates."""
     sin_phi, cos_phi, tan_theta = float(np.sin(phi)), float(np.cos(phi)), float(np.tan(theta))
-    w_x, w_y, w_z = _floats(w_B)
+    w_x, w_y, w_z = float_list(w_B)
     phi_dot = w_x + sin_phi * tan_theta * w_y + cos_phi * tan_theta * w_z
     theta_dot = cos_phi * w_y - sin_phi * w_z
     return phi_dot, theta_dot
@@ -106,7 +106,7 @@ def euler_rates(phi: float, theta: float, w_B: np.ndarray) -> tuple[float, float
 
 def rotate_to_navigation(vector_W: np.ndarray, yaw: float) -> np.ndarray:
     """A world vector expressed in the navigation frame N (W rotated by the heading)."""
-    return np.array(to_navigation(_floats(vector_W), float(np.cos(yaw)), float(np.sin(yaw))))
+    return np.array(to_navigation(float_list(vector_W), float(np.cos(yaw)), float(np.sin(yaw))))
 
 
 def to_navigation(v_W: list[float], cos_yaw: float, sin_yaw: float) -> list[float]:

@@ -70,7 +70,7 @@ from alight.systems.control.force_controller import VehicleModel
 from alight.systems.control.touchdown import light_time
 from alight.systems.estimation.frames import frame_switch, reexpress_point
 from alight.systems.params import bounded
-from alight.systems.rotations import _floats, all_finite, norm
+from alight.systems.rotations import all_finite, float_list, norm
 
 
 class ManagerMode(enum.IntEnum):
@@ -144,7 +144,7 @@ class SafetyArea:
         """Refusal.NONE when `p` [m, in E] is allowed."""
         if not self.enabled:
             return Refusal.NONE
-        x, y, z = _floats(p)  # (per tick: Python floats, the same arithmetic as NumPy's)
+        x, y, z = float_list(p)  # (per tick: Python floats, the same arithmetic as NumPy's)
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             return Refusal.NOT_FINITE
         if z < self.min_height:
@@ -159,7 +159,7 @@ class SafetyArea:
 def inside_polygon(point, polygon) -> bool:
     """Even-odd ray casting; points on an edge count as inside. `point` [x, y], `polygon` a
     list (or array) of [x, y] vertices."""
-    x, y = _floats(point)
+    x, y = float_list(point)
     vertices = [(float(u), float(v)) for u, v in polygon]
     inside = False
     for (x0, y0), (x1, y1) in zip(vertices, vertices[1:] + vertices[:1]):
